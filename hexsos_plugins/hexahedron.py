@@ -46,6 +46,7 @@ __all__ = [
     "MONOMIALS",
     "UNIT_ROUND",
     "gather",
+    "gather_t",
     "det_grid",
     "det_bernstein",
     "bernstein_to_monomial",
@@ -100,9 +101,13 @@ def gather(points, hexes) -> np.ndarray:
     -------
     X : ndarray, shape (3, 8, M), C-contiguous; ``X[c, n, m]`` is coordinate c of node n of hex m.
     """
-    points = np.asarray(points, dtype=np.float64)
-    hexes = np.asarray(hexes, dtype=np.int64)
-    return np.ascontiguousarray(points.T[:, hexes.T])
+    return gather_t(np.ascontiguousarray(np.asarray(points, dtype=np.float64).T), hexes)
+
+
+def gather_t(points_t, hexes) -> np.ndarray:
+    """:func:`gather` from points already transposed to a C-contiguous (3, N) array (reused across chunks)."""
+    idx = np.ascontiguousarray(np.asarray(hexes, dtype=np.int64).T)  # (8, M)
+    return np.take(points_t, idx, axis=1)
 
 
 def _as_soa(X, layout: str = "aos") -> np.ndarray:

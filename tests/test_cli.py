@@ -1,0 +1,158 @@
+"""``hexsos check`` and ``hexsos demo`` end to end (``main(argv)`` returns the exit code)."""
+
+import hashlib
+import json
+import os
+import subprocess
+import sys
+
+import meshio
+import numpy as np
+import pytest
+
+import hexsos_plugins as hs
+from hexsos_plugins import cli
+from hexsos_plugins.examples import demo_mesh, inside_invalid_hex, structured_grid
+from hexsos_plugins.io import read_meshio
+
+
+def _fingerprint(path):
+    with open(path, "rb") as f:
+        return hashlib.sha256(f.read()).hexdigest(), os.stat(path).st_mtime_ns
+
+
+@pytest.fixture(scope="module")
+def demo_arrays():
+    return demo_mesh()
+
+
+@pytest.fixture
+def demo_file(tmp_path, demo_arrays):
+    P, H, _ = demo_arrays
+    # a mixed mesh: the hexes, a quad block, point data, cell data and field data
+    quads = H[:5, :4]
+    mesh = meshio.Mesh(P, [("hexahedron", H), ("quad", quads)],
+                       point_data={"temperature": np.arange(len(P), dtype=float)},
+                       cell_data={"region": [np.full(len(H), 7), np.full(5, 3)]},
+                       field_data={"solid": np.array([7, 3])})
+    path = tmp_path / "demo.vtu"
+    meshio.write(path, mesh)
+    return path
+
+
+def test_demo_writes_the_annotated_mesh(tmp_path, capsys, demo_arrays):
+    out = tmp_path / "d.vtu"
+    assert cli.main(["demo", "-o", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "invalid inside only" in text and "what corner checks miss" in text
+    m = meshio.read(out)
+    P, H, info = demo_arrays
+    ref = hs.check(P, H)
+    status = m.cell_data["hexsos_status"][0]
+    assert np.array_equal(status, ref.status)
+    assert (status == 0).sum() >= 3 and ref.invalid_inside_only.sum() >= 1
+    assert status[info["inside_only_hex"]] == 0 and m.cell_data["hexsos_corner_min_det"][0][info["inside_only_hex"]] > 0
+    assert m.cell_data["hexsos_argmin"][0].shape == (len(H), 3)
+
+
+def test_demo_default_output_goes_to_the_working_directory(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    assert cli.main(["demo", "--json"]) == 0
+    d = json.loads(capsys.readouterr().out)
+    assert os.path.exists(tmp_path / "hexsos-demo.vtu") and d["invalid_inside_only"] >= 1
+
+
+def test_check_summary_and_exit_code(demo_file, capsys, demo_arrays):
+    before = _fingerprint(demo_file)
+    assert cli.main(["check", str(demo_file)]) == 1  # invalid hexes: exit 1
+    text = capsys.readouterr().out
+    ref = hs.check(*demo_arrays[:2])
+    assert f"invalid    {ref.counts()['invalid']} " in text
+    assert f"of which {ref.counts()['invalid_inside_only']} invalid inside only" in text
+    assert "min det J" in text and f"hex {ref.worst}" in text
+    assert _fingerprint(demo_file) == before  # the input is never touched
+
+
+def test_check_all_valid_exits_zero(tmp_path, capsys):
+    P, H = structured_grid(3)
+    path = tmp_path / "grid.vtk"
+    meshio.write(path, meshio.Mesh(P, [("hexahedron", H)]))
+    assert cli.main(["check", str(path)]) == 0
+    assert "valid      27 (100.00%)" in capsys.readouterr().out
+
+
+def test_check_json(demo_file, capsys, demo_arrays):
+    assert cli.main(["check", str(demo_file), "--json"]) == 1
+    d = json.loads(capsys.readouterr().out)
+    ref = hs.check(*demo_arrays[:2])
+    for key in ("hexes", "valid", "invalid", "undecided", "invalid_inside_only", "min_det", "worst_hex",
+                "worst_argmin", "seconds"):
+        assert key in d
+    assert d["invalid"] == ref.counts()["invalid"] and d["worst_hex"] == ref.worst
+    assert d["min_det"] == pytest.approx(float(ref.min_det.min()))
+
+
+@pytest.mark.parametrize("ext", [".vtu", ".vtk", ".msh"])
+def test_check_output_keeps_everything_and_adds_the_arrays(demo_file, tmp_path, ext, demo_arrays):
+    out = tmp_path / f"out{ext}"
+    assert cli.main(["check", str(demo_file), "-o", str(out), "--method", "auto"]) == 1
+    m = read_meshio(out)  # meshio 5.3.5 itself cannot read back multi-block .msh with cell data
+    types = [b.type for b in m.cells]
+    assert "hexahedron" in types and "quad" in types
+    hexblock = types.index("hexahedron")
+    ref = hs.check(*demo_arrays[:2])
+    assert np.array_equal(m.cell_data["hexsos_status"][hexblock].astype(int), ref.status)
+    assert np.allclose(m.cell_data["hexsos_min_det"][hexblock], ref.min_det)
+    assert np.allclose(m.point_data["temperature"], np.arange(len(m.points)))
+    assert "region" in m.cell_data
+
+
+def test_left_handed_file_is_named_and_can_be_fixed(tmp_path, capsys):
+    P, H = structured_grid(2)
+    mirrored = H[:, [0, 3, 2, 1, 4, 7, 6, 5]]
+    path = tmp_path / "left.vtu"
+    meshio.write(path, meshio.Mesh(P, [("hexahedron", mirrored)]))
+    assert cli.main(["check", str(path)]) == 2
+    err = capsys.readouterr().err
+    assert "left-handed" in err and "--fix-orientation" in err and len(err.strip().splitlines()) == 1
+    assert cli.main(["check", str(path), "--fix-orientation"]) == 0
+    assert "valid      8 (100.00%)" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("content,name,match", [
+    (None, "missing.vtu", "no such file"),
+    (b"", "empty.vtk", "empty"),
+    (b"\x00\xff\x13garbage\x00" * 50, "garbage.vtk", "could not read"),
+    (b"hello", "mesh.xyz", "extension"),
+])
+def test_bad_input_one_line_exit_2(tmp_path, capsys, content, name, match):
+    path = tmp_path / name
+    if content is not None:
+        path.write_bytes(content)
+    assert cli.main(["check", str(path)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("hexsos: error: ") and match in err and len(err.strip().splitlines()) == 1
+
+
+def test_no_hexahedra(tmp_path, capsys):
+    path = tmp_path / "tets.vtu"
+    meshio.write(path, meshio.Mesh(np.eye(4, 3), [("tetra", np.array([[0, 1, 2, 3]]))]))
+    assert cli.main(["check", str(path)]) == 2
+    err = capsys.readouterr().err
+    assert "expected hexahedra" in err and "found 1 tetra" in err
+
+
+def test_console_script_prints_no_traceback(tmp_path):
+    bad = tmp_path / "bad.mesh"
+    bad.write_text("MeshVersionFormatted 1\nVertices\nabc\n")
+    r = subprocess.run([sys.executable, "-m", "hexsos_plugins", "check", str(bad)], capture_output=True, text=True)
+    assert r.returncode == 2 and "Traceback" not in r.stderr and "bad.mesh" in r.stderr
+
+
+def test_progress_bar_on_request(tmp_path, capsys):
+    path = tmp_path / "one.vtu"
+    meshio.write(path, meshio.Mesh(inside_invalid_hex(), [("hexahedron", np.arange(8)[None])]))
+    assert cli.main(["check", str(path), "--progress"]) == 1
+    assert "100.0%" in capsys.readouterr().err
+    assert cli.main(["check", str(path)]) == 1  # not a terminal: no bar
+    assert "%" not in capsys.readouterr().err
