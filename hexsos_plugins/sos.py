@@ -51,6 +51,7 @@ __all__ = [
     "svec",
     "smat",
     "monomials_upto",
+    "paper_relaxation",
 ]
 
 _SQRT2 = np.sqrt(2.0)
@@ -108,21 +109,30 @@ def _box_quadratic():
     return tuple(blocks)
 
 
-def _box_linear():
-    basis2 = tuple(monomials_upto(2))
-    blocks = [({(0, 0, 0): 1.0}, basis2)]
+def _box_linear(degree: int = 4):
+    half = degree // 2
+    basis = tuple(monomials_upto(half))
+    blocks = [({(0, 0, 0): 1.0}, basis)]
     for ax in range(3):
         e1 = tuple(1 if i == ax else 0 for i in range(3))
-        blocks.append(({e1: 1.0}, basis2))
-        blocks.append(({(0, 0, 0): 1.0, e1: -1.0}, basis2))
+        blocks.append(({e1: 1.0}, basis))
+        blocks.append(({(0, 0, 0): 1.0, e1: -1.0}, basis))
     return tuple(blocks)
+
+
+def paper_relaxation(degree: int = 4) -> Relaxation:
+    """The paper's relaxation with SOS multipliers (and sigma_0) of the given even degree (4, 6, 8, ...)."""
+    if degree < 4 or degree % 2:
+        raise InvalidInputError(f"degree: expected an even number >= 4, found {degree}")
+    return Relaxation(f"paper{degree}" if degree != 4 else "paper",
+                      f"degree-{degree} SOS multipliers on the six linear constraints (paper, section 4.2)",
+                      _box_linear(degree))
 
 
 #: The relaxations hexsos offers, by name.
 RELAXATIONS = {
     "quad2": Relaxation("quad2", "order 2, quadratic box constraints u(1-u), v(1-v), w(1-w)", _box_quadratic()),
-    "paper": Relaxation("paper", "degree-4 SOS multipliers on the six linear constraints (paper, section 4.2)",
-                        _box_linear()),
+    "paper": paper_relaxation(4),
 }
 
 
@@ -174,23 +184,28 @@ class SOSSolver:
 
     Parameters
     ----------
-    relaxation : str, keyword-only
-        A name of :data:`RELAXATIONS`. Default ``"quad2"``.
+    relaxation : str or Relaxation, keyword-only
+        A name of :data:`RELAXATIONS` (default ``"quad2"``), or a :class:`Relaxation` such as
+        ``paper_relaxation(6)``.
     tol : float, keyword-only
         Clarabel's gap and feasibility tolerances. Default 1e-8.
     max_iter : int, keyword-only
         Clarabel's iteration cap. Default 100.
     """
 
-    def __init__(self, *, relaxation: str = "quad2", tol: float = 1e-8, max_iter: int = 100):
-        if relaxation not in RELAXATIONS:
+    def __init__(self, *, relaxation="quad2", tol: float = 1e-8, max_iter: int = 100):
+        if isinstance(relaxation, Relaxation):
+            relax = relaxation
+        elif relaxation in RELAXATIONS:
+            relax = RELAXATIONS[relaxation]
+        else:
             raise InvalidInputError(f"unknown relaxation {relaxation!r}: expected one of {sorted(RELAXATIONS)}")
         try:
             import clarabel
         except ImportError as exc:  # pragma: no cover - clarabel is a core dependency
             raise DependencyError("the SOS relaxation needs clarabel: pip install clarabel") from exc
         self._clarabel = clarabel
-        self.relaxation = RELAXATIONS[relaxation]
+        self.relaxation = relax
         self.support, self.index, self.block_maps = _structure(self.relaxation)
         self.sizes = [len(b) for _, b in self.relaxation.blocks]
         self._fidx = np.array([self.index[m] for m in MONOMIALS])
