@@ -98,12 +98,14 @@ def _cmd_check(args) -> int:
         from .io import write
 
         warnings = write(mesh.to_meshio(cell_data=result.cell_data()), args.output)
+    pictures = _pictures(args, mesh, result)
     if args.json:
         d = result.to_dict()
         d["file"] = args.mesh
         d["orientation"] = orient + (" (flipped)" if orient == "left-handed" else "")
         if args.output:
             d["output"] = args.output
+        d["pictures"] = pictures
         d["warnings"] = warnings
         print(json.dumps(d))
     else:
@@ -111,11 +113,49 @@ def _cmd_check(args) -> int:
         if orient == "left-handed":
             print("orientation: left-handed file, hexes flipped (--fix-orientation)")
         print(result.summary())
-        if args.output:
-            print(f"wrote {args.output}")
+        for path in ([args.output] if args.output else []) + pictures:
+            print(f"wrote {path}")
         for w in warnings:
             sys.stderr.write(f"hexsos: warning: {w}\n")
     return 0 if result.counts()["valid"] == len(result) else 1
+
+
+def _pictures(args, mesh, result) -> list:
+    from . import viz
+
+    out = []
+    if getattr(args, "screenshot", None):
+        out.append(viz.screenshot(mesh.points, mesh.hexes, result, args.screenshot,
+                                  title=f"{os.path.basename(args.mesh)}: " + _one_line(result)))
+    if getattr(args, "histogram", None):
+        out.append(viz.histogram(result, args.histogram, title=f"{os.path.basename(args.mesh)}: " + _one_line(result)))
+    return out
+
+
+def _one_line(result) -> str:
+    c = result.counts()
+    return (f"{c['hexes']} hexes, {c['invalid']} invalid ({c['invalid_inside_only']} inside only), "
+            f"{c['undecided']} undecided")
+
+
+def _cmd_convert(args) -> int:
+    from .certify import check
+    from .io import write
+
+    mesh, orient = _read_mesh(args.input, args.fix_orientation)
+    bar = Progress("checking", enabled=args.progress)
+    result = check(mesh.points, mesh.hexes, method=args.method, relaxation=args.relaxation, progress=bar)
+    bar.close()
+    warnings = write(mesh.to_meshio(cell_data=result.cell_data()), args.output)
+    if args.json:
+        d = result.to_dict()
+        d.update({"input": args.input, "output": args.output, "warnings": warnings})
+        print(json.dumps(d))
+    else:
+        print(f"{args.input} -> {args.output}: {_one_line(result)}")
+    for w in warnings if not args.json else []:
+        sys.stderr.write(f"hexsos: warning: {w}\n")
+    return 0
 
 
 def _cmd_demo(args) -> int:
@@ -169,8 +209,22 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="print one JSON object instead of the summary")
     p.add_argument("--fix-orientation", action="store_true",
                    help="flip the hexes of a left-handed file (all hexes negatively oriented) before checking")
+    p.add_argument("--screenshot", metavar="PNG",
+                   help="render the mesh coloured by min det J, invalid hexes highlighted, argmin points as spheres")
+    p.add_argument("--histogram", metavar="PNG", help="plot the histogram of min det J per hex")
     _add_check_options(p)
     p.set_defaults(func=_cmd_check)
+
+    p = sub.add_parser("convert", help="read any mesh format, check it, and write any format with the results added",
+                       description="Convert IN to OUT (formats from the extensions), adding the check's cell arrays; "
+                                   "every cell block, point, cell and field data of IN is kept where OUT's format "
+                                   "can hold it (a warning names what it cannot).")
+    p.add_argument("input", metavar="IN", help="the mesh to read (any format meshio reads, plus tolerant variants)")
+    p.add_argument("output", metavar="OUT", help="the mesh to write (.vtu .vtk .msh .mesh ...)")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.add_argument("--fix-orientation", action="store_true", help="flip the hexes of a left-handed file")
+    _add_check_options(p)
+    p.set_defaults(func=_cmd_convert)
 
     p = sub.add_parser("demo", help="generate a damaged hex mesh with Gmsh, check it and write the annotated mesh",
                        description="Generate a ring mesh with Gmsh, damage it deterministically (corner inversions "
@@ -187,7 +241,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def _register_more(sub):
     """Subcommands that live in their own modules (registered when those modules exist)."""
-    for name in ("repair", "convert"):
+    for name in ("repair",):
         try:
             mod = __import__(f"hexsos_plugins.cli_{name}", fromlist=["add_parser"])
         except ImportError:

@@ -56,6 +56,7 @@ __all__ = [
     "det_hessian_at",
     "det_derivatives",
     "det_vertex_gradient",
+    "map_points",
     "det_exact",
     "bernstein_exact",
 ]
@@ -337,6 +338,27 @@ def det_at(X, uvw, *, layout="aos"):
         xv[0] * xw[1] - xv[1] * xw[0]
     )
     return d, (_ROUND_C * UNIT_ROUND) * S
+
+
+def map_points(X, uvw) -> np.ndarray:
+    """World coordinates x(u, v, w) of one parameter point per hex (the trilinear map).
+
+    Parameters
+    ----------
+    X : array_like, shape (M, 8, 3) or (8, 3)
+    uvw : array_like, shape (M, 3) or (3,)
+
+    Returns
+    -------
+    x : ndarray, shape (M, 3)
+    """
+    X = np.asarray(X, dtype=np.float64).reshape(-1, 8, 3)
+    uvw = np.broadcast_to(np.asarray(uvw, dtype=np.float64), (X.shape[0], 3))
+    N = np.ones((X.shape[0], 8))
+    for n, c in enumerate(CORNERS):
+        for ax in range(3):
+            N[:, n] *= uvw[:, ax] if c[ax] else 1.0 - uvw[:, ax]
+    return np.einsum("mn,mnc->mc", N, X)
 
 
 def det_vertex_gradient(X, uvw, *, layout="aos") -> np.ndarray:
