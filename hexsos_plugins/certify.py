@@ -239,7 +239,8 @@ def validate_arrays(points, hexes):
 
 def check(points, hexes, *, method: str = "auto", relaxation: str = "quad2", rtol: float = 1e-9,
           flat_rtol: float = 1e-12, max_depth: int = 30, max_boxes: int = 64, sos_tol: float = 1e-8,
-          sos_max_iter: int = 100, progress=None, chunk_size: int = _CHUNK) -> CheckResult:
+          sos_max_iter: int = 100, progress=None, chunk_size: int = _CHUNK, jobs: int = 1, scheduler=None,
+          block_size: int | None = None) -> CheckResult:
     """Certified validity of every hex: exact min det J, where it occurs, and a proven verdict.
 
     Parameters
@@ -268,6 +269,13 @@ def check(points, hexes, *, method: str = "auto", relaxation: str = "quad2", rto
         Called after each chunk of hexes (and each SOS solve batch) with the hexes done so far.
     chunk_size : int, keyword-only
         Hexes processed at once (bounds memory and keeps the arrays in cache). Default 8192.
+    jobs : int, keyword-only
+        Worker processes (0: one per core). Default 1: in this process.
+    scheduler : dask.distributed.Client or str, optional
+        Run on a Dask cluster (a client, or a scheduler address such as ``"tcp://host:8786"``).
+    block_size : int, optional
+        Hexes per task with ``jobs > 1`` or a scheduler (default: about four tasks per worker, at most
+        65536 hexes each). Each task carries only its hexes' vertex coordinates.
 
     Returns
     -------
@@ -291,42 +299,66 @@ def check(points, hexes, *, method: str = "auto", relaxation: str = "quad2", rto
     P, H = validate_arrays(points, hexes)
     t0 = time.perf_counter()
     M = H.shape[0]
-    ctx = _Context(method, relaxation, rtol, flat_rtol, max_depth, max_boxes, sos_tol, sos_max_iter, progress, M)
-    parts = []
+    opts = _Options(method, relaxation, rtol, flat_rtol, max_depth, max_boxes, sos_tol, sos_max_iter,
+                    max(1, int(chunk_size)))
     PT = np.ascontiguousarray(P.T)
-    for s in range(0, M, chunk_size):
-        parts.append(_check_chunk(PT, H[s : s + chunk_size], ctx))
-        ctx.report(min(s + chunk_size, M))
-    result = CheckResult.concatenate(parts, seconds=time.perf_counter() - t0) if len(parts) > 1 else parts[0]
+    from .parallel import executor
+
+    with executor(jobs, scheduler) as ex:
+        if ex.workers == 1:  # in this process: gather chunk by chunk, report each
+            parts = []
+            for s in range(0, M, opts.chunk):
+                parts.append(_check_block(gather_t(PT, H[s : s + opts.chunk]), opts))
+                if progress is not None:
+                    progress(min(s + opts.chunk, M), M)
+        else:  # each task gets its block's vertex coordinates only, never the whole mesh
+            size = block_size or max(opts.chunk, min(65536, -(-M // (4 * ex.workers))))
+            blocks = [gather_t(PT, H[s : s + size]) for s in range(0, M, size)]
+            report = None if progress is None else (lambda k, n: progress(M if k == n else k * size, M))
+            parts = ex.map(_check_block, blocks, opts, progress=report)
+    result = CheckResult.concatenate(parts) if len(parts) > 1 else parts[0]
     result.seconds = time.perf_counter() - t0
     return result
 
 
-class _Context:
-    def __init__(self, method, relaxation, rtol, flat_rtol, max_depth, max_boxes, sos_tol, sos_max_iter, progress,
-                 total):
-        self.method, self.relaxation, self.rtol, self.flat_rtol = method, relaxation, rtol, flat_rtol
-        self.max_depth, self.max_boxes, self.sos_tol, self.sos_max_iter = max_depth, max_boxes, sos_tol, sos_max_iter
-        self.progress, self.total = progress, total
-        self._solver = None
+@dataclass(frozen=True)
+class _Options:
+    """The options of one check, sent with every block of hexes to wherever it runs."""
 
-    @property
-    def solver(self):
-        if self._solver is None:
-            from .sos import SOSSolver
-
-            self._solver = SOSSolver(relaxation=self.relaxation, tol=self.sos_tol, max_iter=self.sos_max_iter)
-        return self._solver
-
-    def report(self, done):
-        if self.progress is not None:
-            self.progress(done, self.total)
+    method: str
+    relaxation: str
+    rtol: float
+    flat_rtol: float
+    max_depth: int
+    max_boxes: int
+    sos_tol: float
+    sos_max_iter: int
+    chunk: int
 
 
-def _check_chunk(PT, H, ctx: _Context) -> CheckResult:
-    X = gather_t(PT, H)
+_SOLVERS = {}  # one SOSSolver per process and setting, reused across blocks
+
+
+def _solver(opts: _Options):
+    key = (opts.relaxation, opts.sos_tol, opts.sos_max_iter)
+    if key not in _SOLVERS:
+        from .sos import SOSSolver
+
+        _SOLVERS[key] = SOSSolver(relaxation=opts.relaxation, tol=opts.sos_tol, max_iter=opts.sos_max_iter)
+    return _SOLVERS[key]
+
+
+def _check_block(X, opts: _Options) -> CheckResult:
+    """Check the hexes of a block of vertex coordinates X (3, 8, m), in cache-sized chunks."""
+    m = X.shape[2]
+    parts = [_check_chunk(X[:, :, s : s + opts.chunk], opts) for s in range(0, m, opts.chunk)]
+    return CheckResult.concatenate(parts) if len(parts) > 1 else parts[0]
+
+
+def _check_chunk(X, ctx: _Options) -> CheckResult:
+    X = np.ascontiguousarray(X)
     B, err = det_bernstein(X, layout="soa")
-    m = H.shape[0]
+    m = X.shape[2]
     scale = np.abs(B).max(axis=0)
     edge_scale = err / (1024.0 * UNIT_ROUND)  # product of the largest edge L1 norms per direction
     flat = scale <= ctx.flat_rtol * edge_scale
@@ -415,7 +447,7 @@ def _check_chunk(PT, H, ctx: _Context) -> CheckResult:
 
 def _run_sos(ctx, B, err, idx, argmin, lower, ratio, sos_status) -> int:
     """Solve the relaxation on the hexes idx; update argmin (polished), lower (certified) in place."""
-    solver = ctx.solver
+    solver = _solver(ctx)
     C = bernstein_to_monomial(B[:, idx])
     coeff_err = 128.0 * err[idx]
     starts = []

@@ -66,6 +66,10 @@ def _add_check_options(p):
                         "sos: the SOS relaxation on every hex, as the paper")
     p.add_argument("--relaxation", choices=("quad2", "paper"), default="quad2",
                    help="SOS relaxation (default quad2: order 2 with u(1-u) >= 0 ...; paper: section 4.2)")
+    p.add_argument("--jobs", type=int, default=1, metavar="N",
+                   help="worker processes (0: one per core; default 1)")
+    p.add_argument("--scheduler", metavar="ADDRESS",
+                   help="run on a Dask cluster, e.g. tcp://host:8786 (needs the 'dask' extra)")
     p.add_argument("--progress", dest="progress", action="store_true", default=None,
                    help="show a progress bar on stderr even when it is not a terminal")
     p.add_argument("--no-progress", dest="progress", action="store_false", help="never show a progress bar")
@@ -91,7 +95,8 @@ def _cmd_check(args) -> int:
 
     mesh, orient = _read_mesh(args.mesh, args.fix_orientation)
     bar = Progress("checking", enabled=args.progress)
-    result = check(mesh.points, mesh.hexes, method=args.method, relaxation=args.relaxation, progress=bar)
+    result = check(mesh.points, mesh.hexes, method=args.method, relaxation=args.relaxation, progress=bar,
+                   jobs=args.jobs, scheduler=args.scheduler)
     bar.close()
     warnings = []
     if args.output:
@@ -144,7 +149,8 @@ def _cmd_convert(args) -> int:
 
     mesh, orient = _read_mesh(args.input, args.fix_orientation)
     bar = Progress("checking", enabled=args.progress)
-    result = check(mesh.points, mesh.hexes, method=args.method, relaxation=args.relaxation, progress=bar)
+    result = check(mesh.points, mesh.hexes, method=args.method, relaxation=args.relaxation, progress=bar,
+                   jobs=args.jobs, scheduler=args.scheduler)
     bar.close()
     warnings = write(mesh.to_meshio(cell_data=result.cell_data()), args.output)
     if args.json:
@@ -166,7 +172,8 @@ def _cmd_demo(args) -> int:
     t0 = time.perf_counter()
     points, hexes, info = demo_mesh()
     gen = time.perf_counter() - t0
-    result = check(points, hexes, method=args.method, relaxation=args.relaxation)
+    result = check(points, hexes, method=args.method, relaxation=args.relaxation, jobs=args.jobs,
+                   scheduler=args.scheduler)
     out = args.output
     if out is None:
         out = os.path.join(os.getcwd(), "hexsos-demo.vtu")

@@ -1,0 +1,60 @@
+"""check on several processes and on a Dask cluster gives the single-process result."""
+
+import numpy as np
+import pytest
+
+import hexsos_plugins as hs
+from hexsos_plugins import cli
+from hexsos_plugins.examples import hexes_to_mesh, random_hexes
+
+
+@pytest.fixture(scope="module")
+def sample():
+    P, H = hexes_to_mesh(np.concatenate([random_hexes(30000, sigma=0.3, seed=60), random_hexes(50, sigma=0.8, seed=61)]))
+    return P, H, hs.check(P, H)
+
+
+def _same(a, b):
+    # verdicts identical; minima identical up to the last bits (BLAS sums in an order that depends on block sizes)
+    assert np.array_equal(a.status, b.status)
+    assert np.all(np.abs(a.min_det - b.min_det) <= 1e-14 * a.scale)
+    assert np.all(a.lower_bound <= b.min_det) and np.all(b.lower_bound <= a.min_det)
+
+
+def test_jobs_two_processes(sample):
+    P, H, ref = sample
+    calls = []
+    r = hs.check(P, H, jobs=2, block_size=5000, progress=lambda d, t: calls.append((d, t)))
+    _same(ref, r)
+    assert calls[-1] == (len(H), len(H)) and len(calls) == 7  # one report per block
+
+
+def test_jobs_rejects_nonsense():
+    with pytest.raises(hs.InvalidInputError, match="jobs"):
+        hs.check(*hexes_to_mesh(random_hexes(2)), jobs=-3)
+
+
+def test_dask_local_cluster_client_and_address(sample):
+    distributed = pytest.importorskip("dask.distributed")  # the 'dask' extra, installed by the test command
+    P, H, ref = sample
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as lc:
+        with distributed.Client(lc) as client:
+            with distributed.get_task_stream(client) as stream:
+                r = hs.check(P, H, scheduler=client, block_size=8000)
+            _same(ref, r)
+            # one task per block of 8000 hexes, run by the cluster's workers
+            tasks = [t for t in stream.data if "_check_block" in t["key"]]
+            assert len(tasks) == 4 and {t["worker"] for t in tasks} <= set(client.scheduler_info()["workers"])
+        r = hs.check(P[: 8 * 500], H[:500], scheduler=lc.scheduler_address)  # an address string
+        assert np.array_equal(r.status, ref.status[:500])
+
+
+def test_cli_jobs(tmp_path, capsys):
+    import meshio
+
+    P, H = hexes_to_mesh(random_hexes(3000, seed=62))
+    path = tmp_path / "m.vtu"
+    meshio.write(path, meshio.Mesh(P, [("hexahedron", H)]))
+    assert cli.main(["check", str(path), "--jobs", "2", "--json"]) == 1
+    out = capsys.readouterr().out
+    assert f'"hexes": 3000' in out
