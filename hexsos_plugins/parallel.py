@@ -1,8 +1,14 @@
 """Running per-hex work on all cores or on a Dask cluster, with one interface.
 
-``executor(jobs=1, scheduler=None)`` returns a context manager with ``map(fn, items, *args, progress=None)``:
-results come back in the order of ``items``. Each item is one block of hexes' own data (their vertex
-coordinates, a few hundred kB), so no task ever carries the whole mesh.
+``executor(jobs=1, scheduler=None)`` returns a context manager with
+
+* ``imap(fn, items, *args)``: yields ``(index, fn(item, *args))`` as results complete. ``items`` may be a
+  generator: it is consumed lazily, with a bounded number of tasks in flight, so a large mesh is never
+  cut into blocks all at once;
+* ``map(fn, items, *args, progress=None)``: the results in the order of ``items``.
+
+Each item is one block of hexes' own data (their vertex coordinates, a few MB at most), so no task carries
+the whole mesh.
 
 * ``jobs=1`` (default): in this process.
 * ``jobs=N``: N worker processes (``fork`` where the platform has it, so workers start at once).
@@ -14,7 +20,7 @@ from __future__ import annotations
 
 import multiprocessing
 import os
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 
 from .errors import DependencyError, InvalidInputError
 
@@ -24,12 +30,17 @@ __all__ = ["executor", "SerialExecutor", "ProcessExecutor", "DaskExecutor"]
 class SerialExecutor:
     workers = 1
 
-    def map(self, fn, items, *args, progress=None):
-        out = []
+    def imap(self, fn, items, *args):
         for i, item in enumerate(items):
-            out.append(fn(item, *args))
+            yield i, fn(item, *args)
+
+    def map(self, fn, items, *args, progress=None):
+        items = list(items)
+        out = [None] * len(items)
+        for done, (i, res) in enumerate(self.imap(fn, items, *args), 1):
+            out[i] = res
             if progress is not None:
-                progress(i + 1, len(items))
+                progress(done, len(items))
         return out
 
     def __enter__(self):
@@ -45,19 +56,23 @@ class ProcessExecutor(SerialExecutor):
         self.workers = jobs
         self._pool = ProcessPoolExecutor(max_workers=jobs, mp_context=ctx)
 
-    def map(self, fn, items, *args, progress=None):
-        futures = {self._pool.submit(fn, item, *args): i for i, item in enumerate(items)}
-        out = [None] * len(items)
+    def imap(self, fn, items, *args):
+        pending = {}
+        it = enumerate(items)
         try:
-            for done, fut in enumerate(as_completed(futures), 1):
-                out[futures[fut]] = fut.result()
-                if progress is not None:
-                    progress(done, len(items))
-        except BaseException:
-            for fut in futures:
+            for i, item in it:
+                pending[self._pool.submit(fn, item, *args)] = i
+                while len(pending) >= 2 * self.workers:
+                    done, _ = wait(pending, return_when=FIRST_COMPLETED)
+                    for fut in done:
+                        yield pending.pop(fut), fut.result()
+            while pending:
+                done, _ = wait(pending, return_when=FIRST_COMPLETED)
+                for fut in done:
+                    yield pending.pop(fut), fut.result()
+        finally:
+            for fut in pending:
                 fut.cancel()
-            raise
-        return out
 
     def __exit__(self, *exc):
         self._pool.shutdown(wait=True, cancel_futures=True)
@@ -82,21 +97,25 @@ class DaskExecutor(SerialExecutor):
         info = self.client.scheduler_info()
         self.workers = max(1, len(info.get("workers", {})))
 
-    def map(self, fn, items, *args, progress=None):
+    def imap(self, fn, items, *args):
         from dask.distributed import as_completed as dask_completed
 
-        futures = [self.client.submit(fn, item, *args, pure=False) for item in items]
-        index = {f.key: i for i, f in enumerate(futures)}
-        out = [None] * len(items)
+        pending = {}  # key -> (index, future)
+        queue = dask_completed()
+        limit = 4 * self.workers
         try:
-            for done, fut in enumerate(dask_completed(futures), 1):
-                out[index[fut.key]] = fut.result()
-                if progress is not None:
-                    progress(done, len(items))
-        except BaseException:
-            self.client.cancel(futures)
-            raise
-        return out
+            for i, item in enumerate(items):
+                fut = self.client.submit(fn, item, *args, pure=False)
+                pending[fut.key] = (i, fut)
+                queue.add(fut)
+                while queue.count() >= limit:
+                    fut = next(queue)
+                    yield pending.pop(fut.key)[0], fut.result()
+            for fut in queue:
+                yield pending.pop(fut.key)[0], fut.result()
+        finally:
+            if pending:
+                self.client.cancel([f for _, f in pending.values()])
 
     def __exit__(self, *exc):
         if self._own:

@@ -1,0 +1,85 @@
+"""Memory and time of checking a large mesh (default: 2 million hexes), in process and through the CLI.
+
+    python -m comparison.bench_scale [--n 126] [--jobs 1 2] [--cli]
+
+Builds an n^3 structured grid (126^3 = 2,000,376 hexes) with a deterministic perturbation (a smooth
+twist plus noise, so that some hexes need subdivision and a few are invalid), then
+
+* in process: ``check`` with ``tracemalloc`` (peak of numpy allocations during the call) and the process's
+  peak resident set size, for each ``--jobs``;
+* with ``--cli``: writes the mesh as .vtu and runs ``hexsos check`` under ``/usr/bin/time -v`` (peak RSS of
+  the whole command: reading the file, checking, printing).
+"""
+
+from __future__ import annotations
+
+import os
+
+for _v in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_v, "1")
+
+import argparse  # noqa: E402
+import re  # noqa: E402
+import resource  # noqa: E402
+import subprocess  # noqa: E402
+import sys  # noqa: E402
+import tempfile  # noqa: E402
+import time  # noqa: E402
+import tracemalloc  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+
+def big_mesh(n: int, seed: int = 0):
+    from hexsos_plugins.examples import structured_grid
+
+    P, H = structured_grid(n, size=(1.0, 1.0, 1.0))
+    rng = np.random.default_rng(seed)
+    z = P[:, 2]
+    angle = 0.6 * z  # a smooth twist about the vertical axis
+    x, y = P[:, 0] - 0.5, P[:, 1] - 0.5
+    P = np.stack([0.5 + np.cos(angle) * x - np.sin(angle) * y, 0.5 + np.sin(angle) * x + np.cos(angle) * y, z], 1)
+    P += (0.08 / n) * rng.standard_normal(P.shape)
+    return P, H
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--n", type=int, default=126, help="grid size n (n^3 hexes; default 126: 2,000,376)")
+    ap.add_argument("--jobs", type=int, nargs="+", default=[1, 2])
+    ap.add_argument("--cli", action="store_true", help="also run 'hexsos check' on a .vtu under /usr/bin/time -v")
+    args = ap.parse_args(argv)
+
+    from hexsos_plugins import check
+
+    t = time.perf_counter()
+    P, H = big_mesh(args.n)
+    mb = (P.nbytes + H.nbytes) / 2**20
+    print(f"mesh: {len(H):,} hexes, {len(P):,} points ({mb:.0f} MB of arrays), built in {time.perf_counter() - t:.1f} s")
+    for jobs in args.jobs:
+        tracemalloc.start()
+        t = time.perf_counter()
+        r = check(P, H, jobs=jobs)
+        dt = time.perf_counter() - t
+        _, peak = tracemalloc.get_traced_memory()
+        tracemalloc.stop()
+        rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+        print(f"check jobs={jobs}: {dt:.2f} s ({len(H) / dt:,.0f} hexes/s), peak allocations during the call "
+              f"{peak / 2**20:.0f} MB, process peak RSS so far {rss:.0f} MB; {r.counts()}")
+    if args.cli:
+        import meshio
+
+        with tempfile.TemporaryDirectory() as tmp:
+            path = os.path.join(tmp, "big.vtu")
+            meshio.write(path, meshio.Mesh(P, [("hexahedron", H)]))
+            print(f"wrote {path} ({os.path.getsize(path) / 2**20:.0f} MB)")
+            cmd = ["/usr/bin/time", "-v", sys.executable, "-m", "hexsos_plugins", "check", path, "--json"]
+            out = subprocess.run(cmd, capture_output=True, text=True)
+            rss = re.search(r"Maximum resident set size \(kbytes\): (\d+)", out.stderr)
+            wall = re.search(r"Elapsed \(wall clock\) time.*: (\S+)", out.stderr)
+            print(f"hexsos check {len(H):,} hexes from .vtu: wall {wall.group(1) if wall else '?'}, "
+                  f"peak RSS {int(rss.group(1)) / 1024:.0f} MB" if rss else out.stderr[-500:])
+
+
+if __name__ == "__main__":
+    main()
