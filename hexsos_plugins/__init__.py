@@ -22,12 +22,17 @@ from .errors import (
     SolverError,
     UnsupportedFormatError,
 )
+from .io import read, write
+from .mesh import HexMesh
 from .sos import RELAXATIONS
 
 __all__ = [
     "__version__",
     "check",
     "CheckResult",
+    "read",
+    "write",
+    "HexMesh",
     "METHOD_NAMES",
     "STATUS_NAMES",
     "SOS_STATUS_NAMES",

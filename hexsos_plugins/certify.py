@@ -375,7 +375,12 @@ def _check_block(X, opts: _Options) -> CheckResult:
 
 
 def _check_chunk(X, ctx: _Options) -> CheckResult:
-    X = np.ascontiguousarray(X)
+    # Scale each hex by a power of two (exact) so that its extent is about 1: det J can then neither
+    # overflow nor underflow whatever the units (coordinates near 1e+-300 included), and every value is
+    # scaled back exactly (ldexp) at the end.
+    extent = (X.max(axis=1) - X.min(axis=1)).max(axis=0)
+    _, e = np.frexp(extent)
+    X = np.ldexp(X, -e[None, None, :])
     B, err = det_bernstein(X, layout="soa")
     m = X.shape[2]
     scale = np.abs(B).max(axis=0)
@@ -459,6 +464,9 @@ def _check_chunk(X, ctx: _Options) -> CheckResult:
                 min_det[i] = det_at(X[:, :, i : i + 1], witness, layout="soa")[0][0]
     status[flat] = -1
     method[flat] = _FLAT
+    e3 = 3 * e
+    with np.errstate(over="ignore"):  # a value beyond float range is reported as +-inf
+        min_det, lower, corner_min, scale = (np.ldexp(a, e3) for a in (min_det, lower, corner_min, scale))
     return CheckResult(min_det=min_det, lower_bound=lower, argmin=argmin, status=status, corner_min_det=corner_min,
                        method=method, recovery_ratio=ratio, sos_status=sos_status, scale=scale,
                        method_requested=ctx.method, relaxation=ctx.relaxation, sos_solves=sos_solves, boxes=boxes)

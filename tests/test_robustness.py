@@ -1,0 +1,242 @@
+"""Bad and unusual input, untouched inputs, property-based soundness and invariance, reader fuzzing."""
+
+import hashlib
+import itertools
+import time
+
+import meshio
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+from hypothesis.extra.numpy import arrays
+
+import hexsos_plugins as hs
+from comparison.robustness import CASES, run_case
+from hexsos_plugins import bernstein, hexahedron, io, sos
+from hexsos_plugins.examples import hexes_to_mesh, inside_invalid_hex, random_hexes, structured_grid, unit_cube
+from hexsos_plugins.mesh import HexMesh
+from oracle import dense_min, det_j
+
+# ------------------------------------------------------------------------------------------ the README table
+
+
+@pytest.mark.parametrize("case", CASES, ids=[c[0] for c in CASES])
+def test_case_outcome(case, tmp_path):
+    name, _, make, code, text, expect = case
+    got, err, out = run_case(case, str(tmp_path))
+    assert got == code, (err, out)
+    assert "Traceback" not in err
+    if text is not None:
+        assert err.startswith("hexsos: error: ") and text in err and len(err.splitlines()) == 1
+    elif isinstance(expect, dict):
+        import json
+
+        d = json.loads(out)
+        for k, v in expect.items():
+            assert d[k] == v, (k, d)
+
+
+def test_scales_give_the_same_verdicts(tmp_path):
+    import json
+
+    scales = [c for c in CASES if c[0].startswith("scale")]
+    results = [json.loads(run_case(c, str(tmp_path))[2]) for c in scales]
+    key = [(r["valid"], r["invalid"], r["undecided"], r["worst_hex"]) for r in results]
+    assert len(set(key)) == 1
+    # and per hex, through the API, 1e-6 .. 1e6
+    P, H = hexes_to_mesh(random_hexes(300, sigma=0.3, seed=70))
+    ref = hs.check(P, H)
+    for s in (1e-6, 1e6):
+        r = hs.check(P * s - 7.0 * s, H)
+        assert np.array_equal(r.status, ref.status)
+        assert np.allclose(r.min_det, ref.min_det * s**3, rtol=1e-9, atol=1e-12 * s**3)
+
+
+@pytest.mark.parametrize("case", [c for c in CASES if c[3] == 2 and c[0] != "left-handed file"],
+                         ids=lambda c: c[0])
+def test_api_raises_typed_errors(case, tmp_path):
+    path, _ = case[2](str(tmp_path))
+    with pytest.raises(hs.HexsosError) as info:
+        hs.read(path)
+    assert isinstance(info.value, (ValueError, OSError))
+    assert case[4] in str(info.value)
+
+
+def test_api_reports_left_handed_files_and_flips_only_on_request(tmp_path):
+    path, _ = CASES[[c[0] for c in CASES].index("left-handed file")][2](str(tmp_path))
+    mesh = hs.read(path)
+    assert mesh.orientation() == "left-handed"
+    assert (hs.check(mesh.points, mesh.hexes).status == 0).all()  # read never flips by itself
+    assert (hs.check(mesh.flipped().points, mesh.flipped().hexes).status == 1).all()
+
+
+# ------------------------------------------------------------------------------ inputs are never modified
+
+
+def _fp(obj):
+    h = hashlib.sha256()
+    if isinstance(obj, np.ndarray):
+        h.update(obj.tobytes())
+        h.update(str(obj.dtype).encode())
+    elif isinstance(obj, meshio.Mesh):
+        h.update(_fp(obj.points).encode())
+        for b in obj.cells:
+            h.update(b.type.encode() + _fp(np.asarray(b.data)).encode())
+        for group in (obj.point_data, obj.cell_data, obj.field_data):
+            for k in sorted(group):
+                v = group[k]
+                h.update(k.encode() + "".join(_fp(np.asarray(x)) for x in (v if isinstance(v, list) else [v])).encode())
+    elif isinstance(obj, HexMesh):
+        h.update((_fp(obj.points) + _fp(obj.hexes) + _fp(obj.source)).encode())
+    elif isinstance(obj, (list, tuple)):
+        h.update("".join(_fp(x) for x in obj).encode())
+    else:
+        h.update(repr(obj).encode())
+    return h.hexdigest()
+
+
+def test_public_functions_leave_their_inputs_untouched(tmp_path):
+    P, H = hexes_to_mesh(np.concatenate([random_hexes(40, sigma=0.4, seed=71), inside_invalid_hex()[None]]))
+    X = P[H]
+    B, err = hexahedron.det_bernstein(X)
+    uvw = np.random.default_rng(0).random((len(H), 3))
+    mesh = HexMesh.from_arrays(P, H)
+    r = hs.check(P, H)
+    mm = meshio.Mesh(P, [("hexahedron", H)], point_data={"t": np.arange(len(P), dtype=float)})
+    calls = [
+        (hs.check, (P, H), {}),
+        (hs.check, (P, H), {"method": "sos"}),
+        (hexahedron.det_bernstein, (X,), {}),
+        (hexahedron.det_at, (X, uvw), {}),
+        (hexahedron.det_vertex_gradient, (X, uvw), {}),
+        (hexahedron.det_derivatives, (B, uvw), {}),
+        (hexahedron.map_points, (X, uvw), {}),
+        (hexahedron.bernstein_to_monomial, (B,), {}),
+        (bernstein.bracket, (B, err), {}),
+        (bernstein.polish, (B, uvw), {}),
+        (sos.SOSSolver().solve, (hexahedron.bernstein_to_monomial(B)[:, 0],), {}),
+        (HexMesh.from_arrays, (P, H), {}),
+        (mesh.flipped, (), {}),
+        (mesh.with_points, (P + 1.0,), {}),
+        (mesh.to_meshio, (), {"cell_data": r.cell_data()}),
+        (mesh.boundary_faces, (), {}),
+        (io.write, (mm, str(tmp_path / "w.vtu")), {}),
+        (HexMesh.from_meshio, (mm,), {}),
+    ]
+    if callable(getattr(hs, "repair", None)):
+        calls.append((hs.repair, (P, H), {"max_iter": 3}))
+    for fn, args, kw in calls:
+        before = [_fp(a) for a in args] + [_fp(v) for v in kw.values()] + [_fp(mesh)]
+        fn(*args, **kw)
+        after = [_fp(a) for a in args] + [_fp(v) for v in kw.values()] + [_fp(mesh)]
+        assert before == after, fn.__qualname__
+    # and a negative case: the fingerprint does see a change
+    Q = P.copy()
+    f = _fp(Q)
+    Q[0, 0] += 1e-12
+    assert _fp(Q) != f
+
+
+# -------------------------------------------------------------------------------- property-based tests
+
+# the 24 rotations of the cube, as relabelings of the 8 nodes (orientation kept)
+_ROTATIONS = []
+for perm in itertools.permutations(range(3)):
+    for signs in itertools.product((1, -1), repeat=3):
+        R = np.zeros((3, 3))
+        R[range(3), perm] = signs
+        if np.linalg.det(R) > 0:
+            moved = (hexahedron.CORNERS - 0.5) @ R.T + 0.5
+            _ROTATIONS.append([int(np.flatnonzero((hexahedron.CORNERS == m).all(1))[0]) for m in moved])
+assert len(_ROTATIONS) == 24
+
+hexes = arrays(np.float64, (8, 3), elements=st.floats(-1.0, 1.0, allow_nan=False, width=32)).map(
+    lambda noise: unit_cube() + 0.6 * noise)
+fast = settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+
+
+@fast
+@given(hexes)
+def test_property_soundness(X):
+    r = hs.check(X, [range(8)])
+    dense, _, _ = dense_min(X[None], grid=11, zooms=5)
+    if r.status[0] == 1:
+        assert dense[0] > 0 and r.lower_bound[0] > 0
+    if r.status[0] == 0:
+        assert det_j(X[None], r.argmin[None])[0, 0] <= 1e-12 * r.scale[0]
+    assert r.lower_bound[0] <= dense[0] + 1e-12 and r.min_det[0] <= dense[0] + 1e-9 * r.scale[0]
+
+
+@fast
+@given(hexes, st.integers(0, 23), st.floats(1e-3, 1e3), arrays(np.float64, 3, elements=st.floats(-10, 10)),
+       st.integers(0, 2**32 - 1))
+def test_property_invariance(X, rot, scale, shift, seed):
+    q, _ = np.linalg.qr(np.random.default_rng(seed).standard_normal((3, 3)))
+    q *= np.sign(np.linalg.det(q))
+    ref = hs.check(X, [range(8)])
+    moved = hs.check(scale * X @ q.T + shift, [range(8)])
+    relabeled = hs.check(X[_ROTATIONS[rot]], [range(8)])
+    margin = abs(ref.min_det[0]) > 1e-9 * ref.scale[0]  # a verdict on a knife's edge may become undecided
+    for r, s3 in ((moved, scale**3), (relabeled, 1.0)):
+        if margin:
+            assert r.status[0] == ref.status[0]
+        else:
+            assert r.status[0] in (ref.status[0], -1)
+        assert r.min_det[0] == pytest.approx(ref.min_det[0] * s3, rel=1e-9, abs=1e-9 * ref.scale[0] * s3)
+
+
+# ----------------------------------------------------------------------------------------- reader fuzzing
+
+
+def _seed_files(d):
+    P, H = structured_grid(2)
+    m = meshio.Mesh(P, [("hexahedron", H), ("quad", H[:2, :4])], point_data={"t": np.arange(len(P), dtype=float)},
+                    cell_data={"r": [np.arange(8.0), np.arange(2.0)]})
+    paths = []
+    for ext in (".vtk", ".vtu", ".msh", ".mesh"):
+        p = d / f"seed{ext}"
+        io.write(m, p)
+        paths.append(p)
+    return paths
+
+
+def _mutate(data: bytes, rng) -> bytes:
+    b = bytearray(data)
+    for _ in range(int(rng.integers(1, 6))):
+        kind = rng.integers(0, 5)
+        i = int(rng.integers(0, max(len(b), 1)))
+        if kind == 0 and b:
+            b[i % len(b)] = int(rng.integers(0, 256))
+        elif kind == 1:
+            b = b[:i]
+        elif kind == 2:
+            b[i:i] = rng.integers(0, 256, int(rng.integers(1, 40)), dtype=np.uint8).tobytes()
+        elif kind == 3 and b:
+            j = int(rng.integers(i, len(b) + 1))
+            del b[i:j]
+        else:
+            digits = b"0123456789-+.eE \n"
+            if b:
+                b[i % len(b)] = digits[int(rng.integers(0, len(digits)))]
+    return bytes(b)
+
+
+def test_readers_survive_mutated_files(tmp_path):
+    """Bounded-time fuzzing: every mutated file is read or refused with a typed error; nothing else."""
+    rng = np.random.default_rng(1234)
+    seeds = _seed_files(tmp_path)
+    deadline = time.monotonic() + 20.0
+    n = typed = ok = 0
+    while time.monotonic() < deadline:
+        src = seeds[n % len(seeds)]
+        dst = tmp_path / f"fuzz{src.suffix}"
+        dst.write_bytes(_mutate(src.read_bytes(), rng))
+        try:
+            mesh = hs.read(dst)
+            hs.check(mesh.points, mesh.hexes)
+            ok += 1
+        except hs.HexsosError:
+            typed += 1
+        n += 1
+    assert n > 100 and typed > 0 and ok > 0
