@@ -113,7 +113,7 @@ def main(argv=None):
     print(f"single thread (OPENBLAS_NUM_THREADS={os.environ['OPENBLAS_NUM_THREADS']}, Gmsh NumThreads 1)")
     X = examples.random_hexes(args.hexes, sigma=0.3, seed=0)
     P, H = examples.hexes_to_mesh(X)
-    compare(f"random hexes, sigma 0.3 (seed 0)", P, H, args.repeat)
+    compare("random hexes, sigma 0.3 (seed 0)", P, H, args.repeat)
 
     t = time.perf_counter()
     P, H = examples.gmsh_mesh("ring", args.ring)

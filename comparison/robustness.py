@@ -14,13 +14,14 @@ import io
 import json
 import os
 import tempfile
+import time
 
 import meshio
 import numpy as np
 
 from hexsos_plugins.examples import hexes_to_mesh, random_hexes, structured_grid, unit_cube
 
-__all__ = ["CASES", "run_case", "table"]
+__all__ = ["CASES", "run_case", "table", "fuzz"]
 
 
 def _write(path, points, cells, **kw):
@@ -239,5 +240,89 @@ def table() -> str:
     return "\n".join(rows)
 
 
+def _seed_files(d):
+    from hexsos_plugins.io import write
+
+    P, H = structured_grid(2)
+    m = meshio.Mesh(P, [("hexahedron", H), ("quad", H[:2, :4])], point_data={"t": np.arange(len(P), dtype=float)},
+                    cell_data={"r": [np.arange(8.0), np.arange(2.0)]})
+    paths = []
+    for ext in (".vtk", ".vtu", ".msh", ".mesh"):
+        p = os.path.join(d, f"seed{ext}")
+        write(m, p)
+        paths.append(p)
+    # the tolerant variants too: 'Vertices N' on one line, 'Quads', 8-node cells typed 10, trailing text
+    p = os.path.join(d, "variant.mesh")
+    with open(p, "w") as f:
+        f.write("MeshVersionFormatted 2\nDimension 3\nVertices 8\n")
+        f.writelines(" ".join(map(str, c)) + " 0\n" for c in unit_cube())
+        f.write("Quads 1\n1 2 3 4 0\nHexahedra 1\n1 2 3 4 5 6 7 8 0\nEnd\ntrailing text\n")
+    paths.append(p)
+    return paths
+
+
+def _mutate(data: bytes, rng) -> bytes:
+    """A few random edits: byte flips, truncation, insertion, deletion, digit swaps."""
+    b = bytearray(data)
+    for _ in range(int(rng.integers(1, 6))):
+        kind = rng.integers(0, 5)
+        i = int(rng.integers(0, max(len(b), 1)))
+        if kind == 0 and b:
+            b[i % len(b)] = int(rng.integers(0, 256))
+        elif kind == 1:
+            b = b[:i]
+        elif kind == 2:
+            b[i:i] = rng.integers(0, 256, int(rng.integers(1, 40)), dtype=np.uint8).tobytes()
+        elif kind == 3 and b:
+            del b[i : int(rng.integers(i, len(b) + 1))]
+        elif b:
+            digits = b"0123456789-+.eE \n"
+            b[i % len(b)] = digits[int(rng.integers(0, len(digits)))]
+    return bytes(b)
+
+
+def fuzz(seconds: float, directory: str, *, seed: int = 1234) -> dict:
+    """Read and check mutated mesh files for ``seconds``; anything but success or a typed error is a crash."""
+    import hexsos_plugins as hs
+
+    rng = np.random.default_rng(seed)
+    seeds = _seed_files(directory)
+    deadline = time.monotonic() + seconds
+    stats = {"files": 0, "read": 0, "typed_errors": 0, "crashes": []}
+    while time.monotonic() < deadline:
+        src = seeds[stats["files"] % len(seeds)]
+        with open(src, "rb") as f:
+            data = _mutate(f.read(), rng)
+        dst = os.path.join(directory, "fuzz" + os.path.splitext(src)[1])
+        with open(dst, "wb") as f:
+            f.write(data)
+        try:
+            mesh = hs.read(dst)
+            hs.check(mesh.points, mesh.hexes)
+            stats["read"] += 1
+        except hs.HexsosError:
+            stats["typed_errors"] += 1
+        except BaseException as exc:  # noqa: BLE001 - that is what we are looking for
+            if isinstance(exc, KeyboardInterrupt):
+                raise
+            keep = os.path.join(directory, f"crash-{len(stats['crashes'])}" + os.path.splitext(src)[1])
+            with open(keep, "wb") as f:
+                f.write(data)
+            stats["crashes"].append(f"{type(exc).__name__}: {exc} ({keep})")
+        stats["files"] += 1
+    return stats
+
+
 if __name__ == "__main__":
-    print(table())
+    import argparse
+
+    ap = argparse.ArgumentParser(description="the README's bad-input table, or --fuzz SECONDS of reader fuzzing")
+    ap.add_argument("--fuzz", type=float, metavar="SECONDS", help="fuzz the readers for this long")
+    ap.add_argument("--keep", metavar="DIR", help="where to keep crashing files (default: a temporary folder)")
+    a = ap.parse_args()
+    if a.fuzz:
+        d = a.keep or tempfile.mkdtemp(prefix="hexsos-fuzz-")
+        os.makedirs(d, exist_ok=True)
+        print(json.dumps(fuzz(a.fuzz, d), indent=1))
+    else:
+        print(table())

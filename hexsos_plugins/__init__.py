@@ -24,6 +24,7 @@ from .errors import (
 )
 from .io import read, write
 from .mesh import HexMesh
+from .meshrepair import RepairResult, repair, repair_hex
 from .sos import RELAXATIONS
 
 __all__ = [
@@ -33,6 +34,9 @@ __all__ = [
     "read",
     "write",
     "HexMesh",
+    "repair",
+    "repair_hex",
+    "RepairResult",
     "METHOD_NAMES",
     "STATUS_NAMES",
     "SOS_STATUS_NAMES",

@@ -14,6 +14,7 @@ __all__ = [
     "unit_cube",
     "inside_invalid_hex",
     "twisted_hex",
+    "folding_twist",
     "random_hexes",
     "hexes_to_mesh",
     "structured_grid",
@@ -43,14 +44,29 @@ def twisted_hex(angle: float, *, shear: float = 0.0) -> np.ndarray:
     """The unit cube with its bottom four vertices rotated by ``angle`` (radians) about the vertical axis
     through the cube's centre (the paper's Figure 1) and its top face shifted by ``shear`` along +u.
 
-    A pure twist of congruent faces stays valid up to a half turn; with ``shear`` the sequence crosses
-    zero inside the element while the corners stay positive over a range of angles.
+    A twist of congruent faces stays valid up to a half turn (det J = det((1 - w) R + w I) > 0 below pi),
+    and the shear does not change that: it moves x_w only, while x_u and x_v stay horizontal, so det J is
+    unchanged. :func:`folding_twist` is a twist that does fold inside.
     """
     X = unit_cube()
     c, s = np.cos(angle), np.sin(angle)
     xy = X[:4, :2] - 0.5
     X[:4, :2] = 0.5 + xy @ np.array([[c, s], [-s, c]])
     X[4:, 0] += shear
+    return X
+
+
+def folding_twist(angle: float) -> np.ndarray:
+    """A twisted hex that folds inside while its corners stay positive (the paper's Figure 1).
+
+    :func:`twisted_hex` with its top face stretched to a 1.8 x 0.55 rectangle about the vertical axis and
+    vertex 6 moved by (0.15, 0.1, 0.1) (so the minimizer is unique): the slices between the rotated square
+    and the rectangle fold near w = 1/2 from about 145 degrees on, while all 8 corners keep det J >= 0.99.
+    """
+    X = twisted_hex(angle)
+    X[4:, 0] = 0.5 + 1.8 * (X[4:, 0] - 0.5)
+    X[4:, 1] = 0.5 + 0.55 * (X[4:, 1] - 0.5)
+    X[6] += (0.15, 0.1, 0.1)
     return X
 
 
@@ -170,9 +186,11 @@ def demo_mesh(n: int = 6, *, seed: int = 0):
     """
     from .certify import check
 
+    from .mesh import HexMesh
+
     P, H = gmsh_mesh("ring", n)
     P = P.copy()
-    faces, owner = _boundary_faces(H)
+    faces, owner = HexMesh.from_arrays(P, H).boundary_faces(return_hex=True)
     on_boundary = np.zeros(P.shape[0], dtype=bool)
     on_boundary[faces.ravel()] = True
     interior = np.flatnonzero(~on_boundary)
@@ -205,16 +223,3 @@ def demo_mesh(n: int = 6, *, seed: int = 0):
         P[v] = P[v] + 1.2 * (P[H[mm][_OPPOSITE[k]]] - P[v])
         info["corner_inverted_vertices"].append(v)
     return P, H, info
-
-
-#: The six faces of a hex in VTK order, each oriented outward.
-_FACES = np.array([[0, 3, 2, 1], [4, 5, 6, 7], [0, 1, 5, 4], [1, 2, 6, 5], [2, 3, 7, 6], [3, 0, 4, 7]])
-
-
-def _boundary_faces(H):
-    """Quads of the mesh that belong to one hex only, oriented outward, and the hex each belongs to."""
-    faces = H[:, _FACES].reshape(-1, 4)
-    key = np.sort(faces, axis=1)
-    _, inv, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
-    once = counts[inv.ravel()] == 1
-    return faces[once], np.repeat(np.arange(H.shape[0]), 6)[once]

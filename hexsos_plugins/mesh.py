@@ -173,6 +173,20 @@ def _spread(name, values, n_rows, hex_blocks, blocks, what="cell_data"):
     return out
 
 
+def boundary_face_rows(hexes):
+    """All hex faces ``(6 M, 4)`` (face f of hex m at row 6 m + f, in :data:`HEX_FACES` order) and the rows
+    of those that belong to exactly one hex (the boundary quads), sorted."""
+    hexes = np.asarray(hexes, dtype=np.int64)
+    faces = hexes[:, HEX_FACES].reshape(-1, 4)
+    key = np.sort(faces, axis=1)
+    order = np.lexsort(key.T[::-1])  # sort the face node tuples; equal faces become neighbours
+    sk = key[order]
+    differs = (sk[1:] != sk[:-1]).any(axis=1)
+    first = np.concatenate([[True], differs])  # start of a run of equal faces
+    last = np.concatenate([differs, [True]])  # end of a run
+    return faces, np.sort(order[first & last])  # runs of length 1: faces of exactly one hex
+
+
 @dataclass(eq=False, repr=False)
 class HexMesh:
     """The trilinear hexahedra of a mesh, and the mesh they came from.
@@ -412,14 +426,7 @@ class HexMesh:
             Only with ``return_hex=True``: the row of ``hexes`` each face belongs to.
         """
         M = len(self.hexes)
-        faces = self.hexes[:, HEX_FACES].reshape(-1, 4)  # (6M, 4), face f of hex m at row 6m + f
-        key = np.sort(faces, axis=1)
-        order = np.lexsort(key.T[::-1])  # sort the face node tuples; equal faces become neighbours
-        sk = key[order]
-        differs = (sk[1:] != sk[:-1]).any(axis=1)
-        first = np.concatenate([[True], differs])  # start of a run of equal faces
-        last = np.concatenate([differs, [True]])  # end of a run
-        rows = np.sort(order[first & last])  # runs of length 1: faces of exactly one hex
+        faces, rows = boundary_face_rows(self.hexes)
         out = faces[rows]
         if M and self._outward_sign():
             out = out[:, ::-1].copy()

@@ -57,4 +57,4 @@ def test_cli_jobs(tmp_path, capsys):
     meshio.write(path, meshio.Mesh(P, [("hexahedron", H)]))
     assert cli.main(["check", str(path), "--jobs", "2", "--json"]) == 1
     out = capsys.readouterr().out
-    assert f'"hexes": 3000' in out
+    assert '"hexes": 3000' in out

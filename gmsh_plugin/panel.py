@@ -1,0 +1,357 @@
+"""The ONELAB panel "hexsos" in the Gmsh GUI: parameters, Check and Repair buttons, read-only results.
+
+A Python script cannot add an entry under Gmsh's Tools > Plugins; Gmsh's convention (its
+``examples/api/custom_gui.py``, ``prepro.py``, ``tutorials/python/t13.py``) is a script that embeds the Gmsh
+GUI and defines ONELAB parameters. A button is a string parameter with the attribute ``"Macro": "Action"``:
+clicking it sets ``ONELAB/Action`` to the parameter's value, and the script's event loop reacts::
+
+    gmsh.fltk.initialize()
+    while gmsh.fltk.isAvailable() and handle_action():
+        gmsh.fltk.wait()
+
+:func:`handle_action` needs no display: tests (and scripts) set ``ONELAB/Action`` to :data:`ACTION_CHECK` or
+:data:`ACTION_REPAIR`, exactly as the buttons do, call it, and read the results back from ONELAB.
+
+The panel (names as stored in ONELAB; Gmsh hides the leading digits, which fix the order)::
+
+    hexsos
+      Parameters   Method (auto | sos), Relaxation (quad2 | paper), Repair rho, Repair margin (auto | number),
+                   Pin boundary, Repair max iterations
+      [Check]  [Repair]
+      Results      Hexahedra, Invalid, Invalid inside only, Undecided, Minimum det J, Skipped, Message
+"""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+
+from hexsos_plugins.errors import HexsosError, InvalidInputError
+
+from .model import _gmsh, check_model, repair_model
+
+__all__ = [
+    "ACTION_CHECK",
+    "ACTION_REPAIR",
+    "ACTIONS",
+    "P_METHOD",
+    "P_RELAXATION",
+    "P_RHO",
+    "P_MARGIN",
+    "P_PIN",
+    "P_MAX_ITER",
+    "P_CHECK",
+    "P_REPAIR",
+    "R_HEXES",
+    "R_INVALID",
+    "R_INSIDE_ONLY",
+    "R_UNDECIDED",
+    "R_MIN_DET",
+    "R_SKIPPED",
+    "R_MESSAGE",
+    "define_parameters",
+    "read_parameters",
+    "handle_action",
+    "run_check",
+    "run_repair",
+    "gui_available",
+    "last_result",
+    "last_error",
+    "event_loop",
+    "widen_menu",
+]
+
+#: Values the buttons set ``ONELAB/Action`` to.
+ACTION_CHECK = "hexsos check"
+ACTION_REPAIR = "hexsos repair"
+ACTIONS = {"check": ACTION_CHECK, "repair": ACTION_REPAIR}
+
+_ROOT = "hexsos"
+P_METHOD = f"{_ROOT}/0Parameters/0Method"
+P_RELAXATION = f"{_ROOT}/0Parameters/1Relaxation"
+P_RHO = f"{_ROOT}/0Parameters/2Repair rho"
+P_MARGIN = f"{_ROOT}/0Parameters/3Repair margin"
+P_PIN = f"{_ROOT}/0Parameters/4Pin boundary"
+P_MAX_ITER = f"{_ROOT}/0Parameters/5Repair max iterations"
+P_CHECK = f"{_ROOT}/1Check"
+P_REPAIR = f"{_ROOT}/2Repair"
+R_HEXES = f"{_ROOT}/3Results/0Hexahedra"
+R_INVALID = f"{_ROOT}/3Results/1Invalid"
+R_INSIDE_ONLY = f"{_ROOT}/3Results/2Invalid inside only"
+R_UNDECIDED = f"{_ROOT}/3Results/3Undecided"
+R_MIN_DET = f"{_ROOT}/3Results/4Minimum det J"
+R_SKIPPED = f"{_ROOT}/3Results/5Skipped (higher order)"
+R_MESSAGE = f"{_ROOT}/3Results/6Message"
+
+_LAST = {"result": None, "error": None}
+_RESULTS = (R_HEXES, R_INVALID, R_INSIDE_ONLY, R_UNDECIDED, R_MIN_DET, R_SKIPPED)
+
+
+def _parameters(method="auto", relaxation="quad2", rho=200.0, margin="auto", pin=0, max_iter=100):
+    def result(name, label_help):
+        return {"type": "number", "name": name, "values": [0], "readOnly": True, "help": label_help,
+                "attributes": {"Highlight": "Ivory"}}
+
+    return [
+        {"type": "string", "name": P_METHOD, "values": [method], "choices": ["auto", "sos"],
+         "help": "auto: Bernstein bounds, SOS only where the bracket stays open; sos: SOS on every hex (the paper)"},
+        {"type": "string", "name": P_RELAXATION, "values": [relaxation], "choices": ["quad2", "paper"],
+         "help": "quad2: order 2 with u(1-u) >= 0 ...; paper: the paper's relaxation (section 4.2)"},
+        {"type": "number", "name": P_RHO, "values": [rho], "min": 0.0, "max": 1e4, "step": 10.0,
+         "help": "weight of the averaging step of the repair (Algorithm 2)"},
+        {"type": "string", "name": P_MARGIN, "values": [margin], "choices": ["auto", "1e-4", "1e-3", "1e-2"],
+         "help": "det J >= margin (relative to each hex's size) sought by the repair; auto: the repair's default"},
+        {"type": "number", "name": P_PIN, "values": [pin], "choices": [0, 1],
+         "help": "keep the boundary nodes where they are during the repair"},
+        {"type": "number", "name": P_MAX_ITER, "values": [max_iter], "min": 1, "max": 10000, "step": 10,
+         "help": "iterations of the repair"},
+        {"type": "string", "name": P_CHECK, "values": [ACTION_CHECK], "label": "Check",
+         "attributes": {"Macro": "Action", "Aspect": "Button"},
+         "help": "prove every 8-node hex valid or invalid; posts the views"},
+        {"type": "string", "name": P_REPAIR, "values": [ACTION_REPAIR], "label": "Repair",
+         "attributes": {"Macro": "Action", "Aspect": "Button"},
+         "help": "move the nodes until every hex is proven valid, then check again"},
+        result(R_HEXES, "8-node hexahedra checked"),
+        result(R_INVALID, "hexes with a point where det J <= 0 (proven)"),
+        result(R_INSIDE_ONLY, "invalid hexes that are valid at all 8 corners: what corner checks miss"),
+        result(R_UNDECIDED, "hexes neither proven valid nor invalid (e.g. flat)"),
+        result(R_MIN_DET, "the smallest det J over all hexes, on the parameter cube [0,1]^3 (Gmsh's minDetJac x 8)"),
+        result(R_SKIPPED, "higher-order hexahedra, not trilinear: not checked"),
+        {"type": "string", "name": R_MESSAGE, "values": ["press Check"], "readOnly": True,
+         "attributes": {"Highlight": "Ivory"}},
+        # the main "Run" button of the ONELAB window runs the check too
+        {"type": "string", "name": "ONELAB/Button", "values": ["Check", ACTION_CHECK], "visible": False},
+        # the buttons write here; hidden, or the tree shows an editable "Action" field
+        {"type": "string", "name": "ONELAB/Action", "values": [""], "visible": False},
+    ]
+
+
+def define_parameters(**defaults) -> None:
+    """Create (or reset) the panel's ONELAB parameters. Keyword arguments override the parameter defaults:
+    ``method``, ``relaxation``, ``rho``, ``margin`` (``"auto"`` or a number), ``pin`` (0/1), ``max_iter``."""
+    gmsh = _gmsh()
+    if "margin" in defaults and not isinstance(defaults["margin"], str):
+        defaults["margin"] = "auto" if defaults["margin"] is None else repr(float(defaults["margin"]))
+    gmsh.onelab.set(json.dumps({"onelab": {"name": "hexsos", "parameters": _parameters(**defaults)}}))
+
+
+def _string(name, default):
+    gmsh = _gmsh()
+    v = gmsh.onelab.getString(name)
+    return v[0] if len(v) else default
+
+
+def _number(name, default):
+    gmsh = _gmsh()
+    v = gmsh.onelab.getNumber(name)
+    return float(v[0]) if len(v) else default
+
+
+def read_parameters() -> dict:
+    """The panel's parameters as keyword arguments of :func:`check_model` / :func:`repair_model`.
+
+    Raises InvalidInputError on a value that is not understood (e.g. a margin that is not a number)."""
+    method = _string(P_METHOD, "auto").strip()
+    relaxation = _string(P_RELAXATION, "quad2").strip()
+    margin_s = _string(P_MARGIN, "auto").strip()
+    if margin_s.lower() in ("", "auto", "default", "none"):
+        margin = None
+    else:
+        try:
+            margin = float(margin_s)
+        except ValueError:
+            raise InvalidInputError(f"Repair margin: expected 'auto' or a number, found {margin_s!r}") from None
+        if not math.isfinite(margin) or margin < 0:
+            raise InvalidInputError(f"Repair margin: expected a number >= 0, found {margin_s!r}")
+    rho = _number(P_RHO, 200.0)
+    max_iter = _number(P_MAX_ITER, 100)
+    if not (math.isfinite(rho) and rho >= 0):
+        raise InvalidInputError(f"Repair rho: expected a number >= 0, found {rho}")
+    if not (math.isfinite(max_iter) and max_iter >= 1):
+        raise InvalidInputError(f"Repair max iterations: expected an integer >= 1, found {max_iter}")
+    return {"method": method, "relaxation": relaxation, "rho": rho, "margin": margin,
+            "pin_boundary": bool(_number(P_PIN, 0.0)), "max_iter": int(max_iter)}
+
+
+def _highlight(name, colour):
+    gmsh = _gmsh()
+    # ONELAB merges a parameter set again: only the given fields change
+    p = json.loads(gmsh.onelab.get(name))  # one parameter comes back as a bare object
+    if "onelab" in p:
+        p = p["onelab"]["parameters"][0]
+    p.setdefault("attributes", {})["Highlight"] = colour
+    gmsh.onelab.set(json.dumps({"onelab": {"name": "hexsos", "parameters": [p]}}))
+
+
+def _show_result(result, message: str) -> None:
+    gmsh = _gmsh()
+    c = result.counts()
+    hx = result.extra.get("gmsh")
+    gmsh.onelab.setNumber(R_HEXES, [c["hexes"]])
+    gmsh.onelab.setNumber(R_INVALID, [c["invalid"]])
+    gmsh.onelab.setNumber(R_INSIDE_ONLY, [c["invalid_inside_only"]])
+    gmsh.onelab.setNumber(R_UNDECIDED, [c["undecided"]])
+    gmsh.onelab.setNumber(R_MIN_DET, [float(np.min(result.min_det))])
+    gmsh.onelab.setNumber(R_SKIPPED, [sum(hx.skipped.values()) if hx is not None else 0])
+    gmsh.onelab.setString(R_MESSAGE, [message])
+    bad = c["invalid"] + c["undecided"] > 0
+    for name in (R_INVALID, R_INSIDE_ONLY, R_UNDECIDED, R_MIN_DET):
+        _highlight(name, "LightPink" if bad else "PaleGreen")
+
+
+def _fail(message: str) -> None:
+    gmsh = _gmsh()
+    gmsh.onelab.setString(R_MESSAGE, [f"error: {message}"])
+    gmsh.logger.write(f"hexsos: {message}", "warning")  # "error" makes the API raise
+
+
+def run_check(**kwargs):
+    """Check the current model with the panel's parameters (overridden by ``kwargs``), post the views and
+    show the counts in the panel. Returns the CheckResult."""
+    p = read_parameters()
+    p.update(kwargs)
+    result = check_model(method=p["method"], relaxation=p["relaxation"])
+    c = result.counts()
+    _show_result(result, f"checked {c['hexes']} hexes in {result.seconds:.3g} s: "
+                         f"{c['invalid']} invalid ({c['invalid_inside_only']} inside only), "
+                         f"{c['undecided']} undecided")
+    return result
+
+
+def run_repair(**kwargs):
+    """Repair the current model with the panel's parameters (overridden by ``kwargs``): move its nodes,
+    re-check, re-post the views and show the counts. Returns the RepairResult."""
+    p = read_parameters()
+    p.update(kwargs)
+    res = repair_model(rho=p["rho"], margin=p["margin"], pin_boundary=p["pin_boundary"], max_iter=p["max_iter"],
+                       method=p["method"], relaxation=p["relaxation"])
+    after = res.extra["model_check"]
+    c = after.counts()
+    msg = (f"repair {'succeeded' if res.success else 'did not succeed'}: {c['invalid']} invalid, "
+           f"{c['undecided']} undecided left; {len(res.extra['moved_node_tags'])} nodes moved "
+           f"(max {res.stats.get('max_displacement', float('nan')):.3g})")
+    if res.message:
+        msg += f"; {res.message}"
+    _show_result(after, msg)
+    return res
+
+
+def gui_available() -> bool:
+    """True when the Gmsh GUI is up (``gmsh.fltk`` raises without a display: that is False)."""
+    gmsh = _gmsh()
+    try:
+        return bool(gmsh.fltk.isAvailable())
+    except Exception:
+        return False
+
+
+def _refresh():
+    gmsh = _gmsh()
+    if gui_available():
+        gmsh.fltk.update()
+        gmsh.graphics.draw()
+
+
+def handle_action(action: str | None = None) -> bool:
+    """React to one ONELAB action, as the GUI's event loop does after every event.
+
+    Parameters
+    ----------
+    action : str, optional
+        The action to run; default: the value of ``ONELAB/Action`` (set by the buttons). The action is
+        consumed: ``ONELAB/Action`` is reset to "".
+
+    Returns
+    -------
+    bool
+        True to keep the event loop running (always, except for the action "hexsos quit"). Errors of the
+        check or repair (no hexahedra, a bad parameter, ...) do not stop the loop: they are shown in the
+        panel's Message and Gmsh's message console.
+    """
+    gmsh = _gmsh()
+    if action is None:
+        value = gmsh.onelab.getString("ONELAB/Action")
+        action = value[0] if len(value) else ""
+    if not action:
+        return True
+    gmsh.onelab.setString("ONELAB/Action", [""])
+    if action == "reset":  # "Reset database" in the GUI
+        define_parameters()
+    elif action in (ACTION_CHECK, ACTION_REPAIR):
+        what = "checking" if action == ACTION_CHECK else "repairing"
+        if gui_available():
+            gmsh.fltk.setStatusMessage(f"hexsos: {what}...", True)
+        _LAST["result"] = _LAST["error"] = None
+        try:
+            _LAST["result"] = (run_check if action == ACTION_CHECK else run_repair)()
+        except HexsosError as exc:
+            _LAST["error"] = exc
+            _fail(str(exc))
+        if gui_available():
+            gmsh.fltk.setStatusMessage("", True)
+    elif action == "hexsos quit":
+        return False
+    # anything else ("check": the database changed, actions of other panels) needs nothing from us
+    _refresh()
+    return True
+
+
+def widen_menu(width: int = 360) -> None:
+    """Before ``gmsh.fltk.initialize()``: make the tree wide enough for the panel's labels (Gmsh's default,
+    200 pixels, cuts them), widening the window by as much so the graphics keep their size."""
+    gmsh = _gmsh()
+    menu = gmsh.option.getNumber("General.MenuWidth")
+    if menu < width:
+        gmsh.option.setNumber("General.MenuWidth", width)
+        gmsh.option.setNumber("General.GraphicsWidth", gmsh.option.getNumber("General.GraphicsWidth") + width - menu)
+
+
+def last_result():
+    """The result of the last check or repair run by :func:`handle_action` (None before the first, and
+    after one that failed: then :func:`last_error` holds the exception)."""
+    return _LAST["result"]
+
+
+def last_error():
+    """The HexsosError the last check or repair run by :func:`handle_action` raised, or None."""
+    return _LAST["error"]
+
+
+def event_loop(*, auto_action: str | None = None, screenshot: str | None = None, exit_after: bool = False):
+    """Open the Gmsh GUI with the panel and run its event loop until the window closes.
+
+    ``auto_action`` ("check" or "repair") is triggered once at start, by setting ``ONELAB/Action`` as its
+    button does; once it has run, ``screenshot`` (a .png/.jpg/... path) is saved and, with ``exit_after``,
+    the loop ends. Raises whatever ``gmsh.fltk.initialize`` raises when there is no display.
+
+    Returns the result of the last check or repair run from the loop, or None.
+    """
+    gmsh = _gmsh()
+    if not gui_available():
+        widen_menu()
+        gmsh.fltk.initialize()
+    try:
+        gmsh.fltk.openTreeItem(_ROOT)
+    except Exception:  # cosmetic only
+        pass
+    _LAST["result"] = _LAST["error"] = None
+    pending = ACTIONS[auto_action] if auto_action else None
+    if pending:
+        gmsh.onelab.setString("ONELAB/Action", [pending])
+    while gmsh.fltk.isAvailable():
+        current = gmsh.onelab.getString("ONELAB/Action")
+        current = current[0] if len(current) else ""
+        if not handle_action():
+            break
+        if pending and current == pending:
+            pending = None
+            if screenshot:
+                gmsh.fltk.wait(0.05)
+                gmsh.graphics.draw()
+                gmsh.write(screenshot)
+            if exit_after:
+                break
+        gmsh.fltk.wait()
+    return _LAST["result"]

@@ -1,0 +1,678 @@
+"""The Gmsh door: real Gmsh models in, results back through Gmsh views, ONELAB and the command line.
+
+The meshes are built here with Gmsh (the demo ring: hexes inverted at corners and one hex valid at all 8
+corners but invalid inside); the oracle is ``hexsos_plugins.check`` on the same arrays. What is tested is
+the conversion (node and element tags, views, panel, CLI), not the kernel's math again.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import shutil
+import struct
+import subprocess
+import sys
+import zlib
+
+import numpy as np
+import pytest
+
+gmsh = pytest.importorskip("gmsh")
+
+from hexsos_plugins import NoHexahedraError, check  # noqa: E402
+from hexsos_plugins.examples import demo_mesh, gmsh_mesh, hexes_to_mesh, inside_invalid_hex  # noqa: E402
+
+import gmsh_plugin  # noqa: E402
+from gmsh_plugin import model as gm  # noqa: E402
+from gmsh_plugin import panel  # noqa: E402
+from gmsh_plugin.__main__ import main  # noqa: E402
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+
+# --- fixtures ------------------------------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def demo():
+    """The demo ring (arrays), its kernel check (the oracle) and which hex is invalid inside only."""
+    P, H, info = demo_mesh()
+    ref = check(P, H)
+    c = ref.counts()
+    # the fixture must hold what the tests claim to test
+    assert c["invalid"] >= 3 and c["invalid_inside_only"] == 1
+    m = info["inside_only_hex"]
+    assert ref.status[m] == 0 and ref.corner_min_det[m] > 0
+    return P, H, info, ref
+
+
+@pytest.fixture
+def session():
+    """A fresh Gmsh session (no config files, quiet)."""
+    if gmsh.isInitialized():  # pragma: no cover - a test that failed half-way
+        gmsh.finalize()
+    gmsh.initialize(readConfigFiles=False)
+    gmsh.option.setNumber("General.Terminal", 0)
+    yield gmsh
+    gmsh.finalize()
+
+
+def _load_scrambled(P, H, *, seed=0, split=True):
+    """Load arrays into a discrete Gmsh model with sparse, shuffled node tags, the hexes inserted in a
+    shuffled order with sparse tags, in two volume entities. Returns node tag per point, element tag per hex."""
+    rng = np.random.default_rng(seed)
+    ntags = (1000 + 7 * rng.permutation(P.shape[0])).astype(np.uint64)  # sparse, not sorted
+    etags = (50 + 3 * rng.permutation(H.shape[0])).astype(np.uint64)
+    gmsh.model.add("scrambled")
+    order = rng.permutation(P.shape[0])
+    v1 = gmsh.model.addDiscreteEntity(3)
+    gmsh.model.mesh.addNodes(3, v1, ntags[order], P[order].ravel())
+    horder = rng.permutation(H.shape[0])
+    parts = np.array_split(horder, 2) if split else [horder]
+    for k, idx in enumerate(parts):
+        vol = v1 if k == 0 else gmsh.model.addDiscreteEntity(3)
+        gmsh.model.mesh.addElementsByType(vol, 5, etags[idx], ntags[H[idx]].ravel())
+    return ntags, etags
+
+
+def _index_of(tags_result, tags_ref):
+    """Index into the reference order of each result tag."""
+    lookup = {int(t): i for i, t in enumerate(tags_ref)}
+    return np.array([lookup[int(t)] for t in tags_result])
+
+
+def _world(P, H, uvw):
+    """x(u, v, w) written out as nested linear interpolation (independent of the plugin's formula)."""
+    out = []
+    for hexa, (u, v, w) in zip(H, uvw):
+        X = P[hexa]
+        bottom = (1 - v) * ((1 - u) * X[0] + u * X[1]) + v * ((1 - u) * X[3] + u * X[2])
+        top = (1 - v) * ((1 - u) * X[4] + u * X[5]) + v * ((1 - u) * X[7] + u * X[6])
+        out.append((1 - w) * bottom + w * top)
+    return np.array(out).reshape(-1, 3)
+
+
+def _sorted_rows(a):
+    a = np.round(np.asarray(a, dtype=np.float64), 9)
+    return a[np.lexsort(a.T[::-1])]
+
+
+# --- check_model ---------------------------------------------------------------------------------------
+
+def test_check_model_matches_kernel_through_scrambled_tags(session, demo):
+    P, H, info, ref = demo
+    ntags, etags = _load_scrambled(P, H)
+    result = gmsh_plugin.check_model()
+    hx = result.extra["gmsh"]
+    assert result.counts() == ref.counts()
+    assert len(hx) == H.shape[0] and hx.model == "scrambled" and hx.skipped == {}
+    # per hex, through the tags: same hex, same numbers
+    idx = _index_of(hx.element_tags, etags)
+    assert sorted(idx.tolist()) == list(range(H.shape[0]))
+    np.testing.assert_array_equal(result.status, ref.status[idx])
+    np.testing.assert_allclose(result.min_det, ref.min_det[idx], rtol=0, atol=1e-12)
+    np.testing.assert_allclose(result.corner_min_det, ref.corner_min_det[idx], rtol=0, atol=1e-12)
+    np.testing.assert_allclose(result.argmin, ref.argmin[idx], atol=1e-7)
+    # the dense arrays are the original mesh, renamed
+    back = _index_of(hx.node_tags, ntags)
+    np.testing.assert_array_equal(hx.points, P[back])
+    np.testing.assert_array_equal(back[hx.hexes], H[idx])
+    m = int(np.flatnonzero(hx.element_tags == etags[info["inside_only_hex"]])[0])
+    assert result.invalid_inside_only[m]
+
+
+def test_renumbered_nodes_still_map_right(session, demo):
+    P, H, _, ref = demo
+    ntags, etags = gm.add_hex_mesh(P, H)
+    assert ntags.tolist() == list(range(1, P.shape[0] + 1))
+    new = (10**6 + 13 * np.random.default_rng(3).permutation(P.shape[0])).astype(np.uint64)
+    gmsh.model.mesh.renumberNodes(ntags, new)
+    assert np.asarray(gmsh.model.mesh.getNodes()[0]).min() >= 10**6
+    result = gmsh_plugin.check_model(post_views=False)
+    idx = _index_of(result.extra["gmsh"].element_tags, etags)
+    np.testing.assert_array_equal(result.status, ref.status[idx])
+    np.testing.assert_allclose(result.min_det, ref.min_det[idx], atol=1e-12)
+    assert result.extra["gmsh_views"] == {} and gm.hexsos_views() == {}
+
+
+def test_views_hold_the_results_per_element_tag(session, demo):
+    P, H, info, ref = demo
+    _, etags = _load_scrambled(P, H, seed=1)
+    result = gmsh_plugin.check_model()
+    views = result.extra["gmsh_views"]
+    assert set(views) == {"min_det", "status", "argmin"}
+    assert gm.hexsos_views() == views
+    names = {k: gmsh.option.getString(f"View[{gmsh.view.getIndex(t)}].Name") for k, t in views.items()}
+    assert names == {"min_det": "hexsos: min det J", "status": "hexsos: status",
+                     "argmin": "hexsos: where invalid hexes fold"}
+
+    for key, expected in (("min_det", ref.min_det), ("status", ref.status.astype(float))):
+        dtype, tags, data, _, ncomp = gmsh.view.getHomogeneousModelData(views[key], 0)
+        assert dtype == "ElementData" and ncomp == 1 and len(tags) == H.shape[0]
+        np.testing.assert_allclose(np.asarray(data), expected[_index_of(tags, etags)], atol=1e-12)
+
+    # one point per invalid hex, at x(u*) of that hex, valued by its min det J
+    types, counts, data = gmsh.view.getListData(views["argmin"])
+    bad = np.flatnonzero(ref.status == 0)
+    assert list(types) == ["SP"] and int(counts[0]) == bad.size
+    got = np.asarray(data[0]).reshape(-1, 4)
+    expected = np.column_stack([_world(P, H[bad], ref.argmin[bad]), ref.min_det[bad]])
+    np.testing.assert_allclose(_sorted_rows(got), _sorted_rows(expected), atol=1e-6)
+    # the inside-only hex folds away from its corners: its point is in the view and is none of its vertices
+    m = info["inside_only_hex"]
+    x = _world(P, H[[m]], ref.argmin[[m]])[0]
+    assert np.min(np.linalg.norm(got[:, :3] - x, axis=1)) < 1e-6
+    assert np.min(np.linalg.norm(P[H[m]] - x, axis=1)) > 1e-3
+
+
+def test_checking_again_replaces_the_views(session, demo):
+    P, H, _, _ = demo
+    gm.add_hex_mesh(P, H)
+    first = gmsh_plugin.check_model().extra["gmsh_views"]
+    n_views = len(gmsh.view.getTags())
+    second = gmsh_plugin.check_model().extra["gmsh_views"]
+    assert second == first and len(gmsh.view.getTags()) == n_views
+    gm.remove_views()
+    assert gm.hexsos_views() == {} and len(gmsh.view.getTags()) == n_views - 3
+
+
+def test_post_views_of_a_kernel_result(session):
+    P, H = hexes_to_mesh(np.stack([inside_invalid_hex(), inside_invalid_hex() + [5.0, 0, 0]]))
+    gm.add_hex_mesh(P, H, element_tags=[7, 3])
+    ref = check(P, H)
+    views = gmsh_plugin.post_views(ref, [7, 3], P, H)
+    _, tags, data, _, _ = gmsh.view.getHomogeneousModelData(views["min_det"], 0)
+    np.testing.assert_allclose(data, ref.min_det[_index_of(tags, [7, 3])])
+    _, counts, _ = gmsh.view.getListData(views["argmin"])
+    assert int(counts[0]) == 2
+    with pytest.raises(gm.GmshModelError, match="element tags"):
+        gmsh_plugin.post_views(ref, [7], P, H)
+    with pytest.raises(gm.GmshModelError, match="does not come from check_model"):
+        gmsh_plugin.post_views(ref)
+
+
+def test_all_valid_mesh_posts_an_empty_argmin_view(session):
+    P, H = gmsh_mesh("box", 2)
+    gm.add_hex_mesh(P, H)
+    result = gmsh_plugin.check_model()
+    assert result.counts()["valid"] == 8
+    _, counts, _ = gmsh.view.getListData(result.extra["gmsh_views"]["argmin"])
+    assert sum(int(c) for c in counts) == 0
+
+
+def test_other_volume_elements_are_ignored_and_counted(session):
+    P, H = hexes_to_mesh(inside_invalid_hex())
+    ntags, _ = gm.add_hex_mesh(P, H)
+    vol = gmsh.model.addDiscreteEntity(3)
+    gmsh.model.mesh.addNodes(3, vol, [100], [0.0, 0.0, -1.0])
+    gmsh.model.mesh.addElementsByType(vol, 4, [], [int(ntags[0]), int(ntags[1]), int(ntags[2]), 100])
+    result = gmsh_plugin.check_model()
+    hx = result.extra["gmsh"]
+    assert result.counts()["invalid_inside_only"] == 1 and len(hx) == 1
+    assert hx.other == {"Tetrahedron 4": 1} and hx.points.shape == (8, 3)  # node 100 is not a hex node
+
+
+def _box_order2(incomplete: bool):
+    gmsh.model.add("order2")
+    g = gmsh.model.geo
+    p = [g.addPoint(*c) for c in [(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0)]]
+    lines = [g.addLine(p[i], p[(i + 1) % 4]) for i in range(4)]
+    surf = g.addPlaneSurface([g.addCurveLoop(lines)])
+    for c in lines:
+        g.mesh.setTransfiniteCurve(c, 3)
+    g.mesh.setTransfiniteSurface(surf)
+    g.mesh.setRecombine(2, surf)
+    g.extrude([(2, surf)], 0, 0, 1, numElements=[2], recombine=True)
+    g.synchronize()
+    gmsh.option.setNumber("Mesh.SecondOrderIncomplete", int(incomplete))
+    gmsh.model.mesh.generate(3)
+    gmsh.model.mesh.setOrder(2)
+
+
+@pytest.mark.parametrize("incomplete,name", [(False, "Hexahedron 27"), (True, "Hexahedron 20")])
+def test_higher_order_hexes_are_reported_as_skipped(session, incomplete, name):
+    _box_order2(incomplete)
+    with pytest.raises(NoHexahedraError, match=f"8 {name}.*not trilinear"):
+        gmsh_plugin.check_model()
+    # beside 8-node hexes they are skipped, not an error
+    P, H = hexes_to_mesh(inside_invalid_hex() + [5.0, 0, 0])
+    gm.add_hex_mesh(P, H, model=None, node_tags=np.arange(10**5, 10**5 + 8))
+    result = gmsh_plugin.check_model()
+    assert len(result) == 1 and result.extra["gmsh"].skipped == {name: 8}
+    assert "skipped (higher order, not trilinear): 8 " + name in result.extra["gmsh"].describe()
+
+
+def test_no_hexahedra_and_no_session_are_typed_errors(session):
+    gmsh.model.add("empty")
+    with pytest.raises(NoHexahedraError, match="no 8-node hexahedra"):
+        gmsh_plugin.check_model()
+    gmsh.finalize()
+    try:
+        with pytest.raises(gm.GmshModelError, match="not initialized"):
+            gmsh_plugin.check_model()
+    finally:
+        gmsh.initialize(readConfigFiles=False)
+
+
+def test_world_points_at_the_corners_are_the_vertices():
+    P, H = hexes_to_mesh(inside_invalid_hex())
+    from hexsos_plugins.hexahedron import CORNERS
+
+    np.testing.assert_allclose(gm.world_points(P, np.repeat(H, 8, axis=0), CORNERS), P[H[0]])
+    np.testing.assert_allclose(gm.world_points(P, H, [[0.5, 0.5, 0.5]])[0], P.mean(axis=0))
+
+
+def test_write_views(session, tmp_path):
+    P, H = hexes_to_mesh(np.stack([inside_invalid_hex(), inside_invalid_hex() + [4.0, 0, 0]]))
+    gm.add_hex_mesh(P, H)
+    with pytest.raises(gm.GmshModelError, match="run a check first"):
+        gm.write_views(str(tmp_path / "none.pos"))
+    ref = gmsh_plugin.check_model()
+    pos = tmp_path / "views.pos"
+    assert gm.write_views(str(pos)) == [str(pos)]
+    text = pos.read_text()
+    for name in ("hexsos: min det J", "hexsos: status", "hexsos: where invalid hexes fold"):
+        assert f'View "{name}"' in text
+    assert text.count("SP(") == 2
+    # .msh: the mesh once with the element data; the argmin points beside it; Gmsh reads both back
+    msh = tmp_path / "views.msh"
+    files = gm.write_views(str(msh))
+    assert files == [str(msh), str(tmp_path / "views-argmin.pos")]
+    assert msh.read_text().count("$Nodes") == 1
+    gmsh.model.add("reread")
+    for f in files:
+        gmsh.merge(f)
+    names = {gmsh.option.getString(f"View[{gmsh.view.getIndex(t)}].Name"): t for t in gmsh.view.getTags()}
+    assert sum(n == "hexsos: min det J" for n in names) == 1
+    tag = [t for t in gmsh.view.getTags()
+           if gmsh.option.getString(f"View[{gmsh.view.getIndex(t)}].Name") == "hexsos: min det J"][-1]
+    _, _, data, _, _ = gmsh.view.getHomogeneousModelData(tag, 0)
+    np.testing.assert_allclose(np.sort(data), np.sort(ref.min_det))
+
+
+# --- the panel -----------------------------------------------------------------------------------------
+
+def _results():
+    num = {k: gmsh.onelab.getNumber(v)[0] for k, v in (("hexes", panel.R_HEXES), ("invalid", panel.R_INVALID),
+                                                       ("inside_only", panel.R_INSIDE_ONLY),
+                                                       ("undecided", panel.R_UNDECIDED),
+                                                       ("min_det", panel.R_MIN_DET))}
+    num["message"] = gmsh.onelab.getString(panel.R_MESSAGE)[0]
+    return num
+
+
+def _press(action):
+    gmsh.onelab.setString("ONELAB/Action", [action])
+    keep_going = panel.handle_action()
+    assert gmsh.onelab.getString("ONELAB/Action") == [""]  # consumed, as in Gmsh's examples
+    return keep_going
+
+
+def test_panel_check_button(session, demo):
+    P, H, _, ref = demo
+    _load_scrambled(P, H, seed=2)
+    panel.define_parameters()
+    for name in (panel.P_METHOD, panel.P_RELAXATION, panel.P_RHO, panel.P_MARGIN, panel.P_PIN, panel.P_CHECK,
+                 panel.P_REPAIR, panel.R_HEXES, panel.R_INVALID, panel.R_INSIDE_ONLY, panel.R_MIN_DET):
+        assert gmsh.onelab.getNames(re.escape(name)) == [name]
+    # the buttons are ONELAB actions carrying the values the handler reacts to
+    import json
+
+    for name, value in ((panel.P_CHECK, panel.ACTION_CHECK), (panel.P_REPAIR, panel.ACTION_REPAIR)):
+        p = json.loads(gmsh.onelab.get(name))
+        assert p["values"] == [value] and p["attributes"]["Macro"] == "Action"
+    assert _results()["invalid"] == 0 and gm.hexsos_views() == {}
+    assert _press(panel.ACTION_CHECK) is True
+    c = ref.counts()
+    r = _results()
+    assert (r["hexes"], r["invalid"], r["inside_only"], r["undecided"]) == (
+        c["hexes"], c["invalid"], c["invalid_inside_only"], c["undecided"])
+    assert r["min_det"] == pytest.approx(float(ref.min_det.min()), abs=1e-12)
+    assert f"{c['invalid']} invalid (1 inside only)" in r["message"]
+    assert set(gm.hexsos_views()) == {"min_det", "status", "argmin"}
+    assert panel.last_result().counts() == c
+    # unrelated actions are left alone and keep the loop going
+    assert _press("check") is True and _results()["invalid"] == c["invalid"]
+
+
+def test_panel_parameters_reach_the_kernel(session):
+    P, H = hexes_to_mesh(np.stack([inside_invalid_hex(), inside_invalid_hex() + [4.0, 0, 0]]))
+    gm.add_hex_mesh(P, H)
+    panel.define_parameters()
+    gmsh.onelab.setString(panel.P_METHOD, ["sos"])
+    gmsh.onelab.setString(panel.P_RELAXATION, ["paper"])
+    gmsh.onelab.setNumber(panel.P_RHO, [50.0])
+    gmsh.onelab.setString(panel.P_MARGIN, ["2e-3"])
+    gmsh.onelab.setNumber(panel.P_PIN, [1])
+    gmsh.onelab.setNumber(panel.P_MAX_ITER, [7])
+    assert panel.read_parameters() == {"method": "sos", "relaxation": "paper", "rho": 50.0, "margin": 2e-3,
+                                       "pin_boundary": True, "max_iter": 7}
+    _press(panel.ACTION_CHECK)
+    res = panel.last_result()
+    assert (res.method_requested, res.relaxation) == ("sos", "paper") and res.sos_solves >= 2
+    assert _results()["inside_only"] == 2
+    panel.define_parameters()  # reset
+    assert panel.read_parameters()["margin"] is None and panel.read_parameters()["method"] == "auto"
+
+
+def test_panel_errors_are_shown_not_raised(session):
+    panel.define_parameters()
+    gmsh.model.add("nothing")
+    assert _press(panel.ACTION_CHECK) is True
+    msg = _results()["message"]
+    assert msg.startswith("error:") and "no 8-node hexahedra" in msg
+    assert panel.last_result() is None and isinstance(panel.last_error(), NoHexahedraError)
+    P, H = hexes_to_mesh(inside_invalid_hex())
+    gm.add_hex_mesh(P, H)
+    gmsh.onelab.setString(panel.P_MARGIN, ["lots"])
+    assert _press(panel.ACTION_REPAIR) is True
+    assert "Repair margin" in _results()["message"]
+    assert np.array_equal(gm.model_hexes().points, P)  # nothing moved
+    assert _press("hexsos quit") is False
+
+
+# --- repair --------------------------------------------------------------------------------------------
+
+def _repairable():
+    """A ring with an interior vertex pushed part-way through its neighbour (2 corner-invalid hexes) and a
+    separate hex that is valid at its corners but invalid inside: 3 invalid hexes the repair fixes."""
+    from hexsos_plugins.examples import _OPPOSITE
+    from hexsos_plugins.mesh import HexMesh
+
+    P, H = gmsh_mesh("ring", 2)
+    interior = np.flatnonzero(~HexMesh.from_arrays(P, H).boundary_vertices())
+    v = int(interior[interior.size // 2])
+    m = int(np.flatnonzero((H == v).any(axis=1))[0])
+    k = int(np.flatnonzero(H[m] == v)[0])
+    P[v] += 0.7 * (P[H[m][_OPPOSITE[k]]] - P[v])
+    X = 0.1 * inside_invalid_hex() + [3.0, 0.0, 0.0]
+    P = np.vstack([P, X])
+    H = np.vstack([H, P.shape[0] - 8 + np.arange(8)[None]])
+    return P, H
+
+
+def test_panel_repair_button_moves_the_nodes_in_the_model(session):
+    P, H = _repairable()
+    ref = check(P, H)
+    assert ref.counts()["invalid"] == 3 and ref.counts()["invalid_inside_only"] == 1
+    _load_scrambled(P, H, seed=4)
+    panel.define_parameters()
+    _press(panel.ACTION_CHECK)
+    assert _results()["invalid"] == 3
+    before = {int(t): c for t, c in zip(*_nodes())}
+    _press(panel.ACTION_REPAIR)
+    res = panel.last_result()
+    assert res.success, res.message
+    r = _results()
+    assert r["invalid"] == 0 and r["undecided"] == 0 and r["min_det"] > 0
+    assert r["message"].startswith("repair succeeded")
+    # the nodes moved in the Gmsh model, to the repaired coordinates, under their own tags
+    after = {int(t): c for t, c in zip(*_nodes())}
+    hx = res.extra["gmsh"]
+    moved = {int(t) for t in res.extra["moved_node_tags"]}
+    assert moved
+    for i, t in enumerate(hx.node_tags):
+        if int(t) in moved:
+            np.testing.assert_array_equal(after[int(t)], res.points[i])
+            assert not np.array_equal(after[int(t)], before[int(t)])
+        else:
+            np.testing.assert_array_equal(after[int(t)], before[int(t)])
+    # an independent check of the model as Gmsh now holds it
+    again = gmsh_plugin.check_model()
+    assert again.counts()["invalid"] == 0 and again.counts()["valid"] == H.shape[0]
+    dtype, tags, data, _, ncomp = gmsh.view.getHomogeneousModelData(gm.hexsos_views()["displacement"], 0)
+    assert dtype == "NodeData" and ncomp == 3
+    disp = np.asarray(data).reshape(-1, 3)[_index_of(hx.node_tags, tags)]
+    np.testing.assert_allclose(disp, res.points - hx.points, atol=1e-12)
+
+
+def test_repair_model_keeps_nodes_shared_with_tetrahedra(session):
+    P, H = hexes_to_mesh(inside_invalid_hex())
+    ntags, _ = gm.add_hex_mesh(P, H)
+    vol = gmsh.model.addDiscreteEntity(3)
+    gmsh.model.mesh.addNodes(3, vol, [100], [0.0, 0.0, -1.0])
+    shared = [int(ntags[0]), int(ntags[1]), int(ntags[2])]
+    gmsh.model.mesh.addElementsByType(vol, 4, [], shared + [100])
+    res = gmsh_plugin.repair_model()
+    assert res.success and res.extra["model_check"].counts()["invalid"] == 0
+    for t in shared:
+        np.testing.assert_array_equal(gmsh.model.mesh.getNode(t)[0], P[t - 1])
+    assert not set(shared) & {int(t) for t in res.extra["moved_node_tags"]}
+
+
+def _nodes():
+    tags, coords, _ = gmsh.model.mesh.getNodes()
+    return np.asarray(tags), np.asarray(coords).reshape(-1, 3)
+
+
+# --- the command line ----------------------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def demo_msh(tmp_path_factory, demo):
+    P, H, _, _ = demo
+    path = str(tmp_path_factory.mktemp("gmsh") / "demo.msh")
+    own = not gmsh.isInitialized()
+    if own:
+        gmsh.initialize(readConfigFiles=False)
+    gmsh.option.setNumber("General.Terminal", 0)
+    _load_scrambled(P, H, seed=5)
+    gmsh.write(path)
+    gmsh.model.remove()
+    if own:
+        gmsh.finalize()
+    return path
+
+
+def _env(display=False):
+    env = dict(os.environ)
+    env["PYTHONPATH"] = ROOT + os.pathsep + env.get("PYTHONPATH", "")
+    if not display:
+        env.pop("DISPLAY", None)
+        env.pop("WAYLAND_DISPLAY", None)
+    return env
+
+
+def _counts_in(text):
+    out = {}
+    for key, pat in (("hexes", r"^hexes\s+(\d+)"), ("invalid", r"^invalid\s+(\d+)"),
+                     ("invalid_inside_only", r"of which (\d+) invalid inside only"), ("undecided", r"^undecided\s+(\d+)")):
+        m = re.search(pat, text, re.M)
+        out[key] = int(m.group(1)) if m else None
+    return out
+
+
+def test_cli_nopopup_prints_the_counts_and_writes_the_views(demo, demo_msh, tmp_path):
+    _, _, _, ref = demo
+    out = tmp_path / "views.pos"
+    proc = subprocess.run([sys.executable, "-m", "gmsh_plugin", demo_msh, "-nopopup", "-o", str(out)],
+                          capture_output=True, text=True, env=_env(display=True), cwd=str(tmp_path), timeout=120)
+    assert proc.returncode == 1, proc.stderr
+    c = ref.counts()
+    assert _counts_in(proc.stdout) == {k: c[k] for k in ("hexes", "invalid", "invalid_inside_only", "undecided")}
+    assert "invalid" in proc.stdout and "Gmsh element" in proc.stdout and "Traceback" not in proc.stderr
+    text = out.read_text()
+    assert 'View "hexsos: min det J"' in text and 'View "hexsos: status"' in text
+    assert text.count("SP(") == c["invalid"]
+
+
+def test_cli_all_valid_exits_0_in_process(tmp_path, capsys):
+    path = str(tmp_path / "box.vtk")
+    P, H = gmsh_mesh("box", 2)
+    from hexsos_plugins.io import write
+    from hexsos_plugins.mesh import HexMesh
+
+    write(HexMesh.from_arrays(P, H), path)  # legacy VTK that Gmsh reads
+    assert not gmsh.isInitialized()
+    assert main([path, "-nopopup"]) == 0
+    out = capsys.readouterr().out
+    assert _counts_in(out)["hexes"] == 8 and _counts_in(out)["invalid"] == 0
+    assert not gmsh.isInitialized()  # main finalizes the session it started
+
+
+def test_cli_headless_without_display_and_repair(demo_msh, tmp_path, capsys, monkeypatch):
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    assert main(["--demo", "-o", str(tmp_path / "v.msh")]) == 1  # no display: headless, no -nopopup needed
+    out = capsys.readouterr().out
+    assert _counts_in(out)["invalid_inside_only"] == 1 and (tmp_path / "v.msh").exists()
+    path = str(tmp_path / "repairable.msh")
+    gmsh.initialize(readConfigFiles=False)
+    gmsh.option.setNumber("General.Terminal", 0)
+    gm.add_hex_mesh(*_repairable())
+    gmsh.write(path)
+    gmsh.finalize()
+    assert main([path, "--auto-action", "repair"]) == 0
+    out = capsys.readouterr().out
+    assert "certified" in out and _counts_in(out)["invalid"] == 0
+
+
+@pytest.mark.parametrize("ext", ["vtk", "mesh"])
+def test_cli_reads_other_formats_gmsh_reads(demo, tmp_path, capsys, ext):
+    P, H, _, ref = demo
+    from hexsos_plugins.io import write
+    from hexsos_plugins.mesh import HexMesh
+
+    path = str(tmp_path / f"demo.{ext}")
+    write(HexMesh.from_arrays(P, H), path)
+    assert main([path, "-nopopup"]) == 1
+    c = ref.counts()
+    assert _counts_in(capsys.readouterr().out) == {k: c[k] for k in ("hexes", "invalid", "invalid_inside_only",
+                                                                      "undecided")}
+
+
+@pytest.mark.parametrize("content,what", [(None, "no such file"), ("", "no 8-node hexahedra"),
+                                          ("hello world\n", "Gmsh could not open it"), ("dir", "directory")])
+def test_cli_bad_input_one_line_exit_2(tmp_path, content, what):
+    path = tmp_path / "bad.msh"
+    if content == "dir":
+        path.mkdir()
+    elif content is not None:
+        path.write_text(content)
+    proc = subprocess.run([sys.executable, "-m", "gmsh_plugin", str(path), "-nopopup"], capture_output=True,
+                          text=True, env=_env(), cwd=str(tmp_path), timeout=120)
+    assert proc.returncode == 2
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("hexsos-gmsh: error:") and what in lines[0], proc.stderr
+    assert "Traceback" not in proc.stderr + proc.stdout
+
+
+def test_cli_usage_errors(capsys):
+    assert main(["x.msh", "--method", "nope", "-nopopup"]) == 2
+    assert len(capsys.readouterr().err.strip().splitlines()) == 1
+    assert main(["-nopopup"]) == 2
+    assert "no MESH" in capsys.readouterr().err
+    assert main(["--version"]) == 0
+
+
+# --- the GUI under a virtual display -------------------------------------------------------------------
+
+def _png_rgb(path):
+    """Decode an 8-bit RGB/RGBA PNG (what Gmsh writes) without third-party packages."""
+    with open(path, "rb") as f:
+        data = f.read()
+    assert data[:8] == b"\x89PNG\r\n\x1a\n"
+    pos, idat, w = 8, b"", None
+    while pos < len(data):
+        (n,) = struct.unpack(">I", data[pos:pos + 4])
+        kind, body = data[pos + 4:pos + 8], data[pos + 8:pos + 8 + n]
+        if kind == b"IHDR":
+            w, h, depth, ctype = struct.unpack(">IIBB", body[:10])
+            assert depth == 8 and ctype in (2, 6)
+            ch = 3 if ctype == 2 else 4
+        elif kind == b"IDAT":
+            idat += body
+        pos += 12 + n
+    raw = np.frombuffer(zlib.decompress(idat), dtype=np.uint8).reshape(h, 1 + w * ch)
+    img = np.zeros((h, w * ch), dtype=np.int64)
+    for y in range(h):
+        f, line = raw[y, 0], raw[y, 1:].astype(np.int64)
+        prev = img[y - 1] if y else np.zeros(w * ch, dtype=np.int64)
+        if f == 0:
+            cur = line
+        elif f == 2:
+            cur = (line + prev) % 256
+        else:
+            cur = np.zeros(w * ch, dtype=np.int64)
+            for i in range(w * ch):
+                a = cur[i - ch] if i >= ch else 0
+                b, c = prev[i], (prev[i - ch] if i >= ch and y else 0)
+                if f == 1:
+                    pred = a
+                elif f == 3:
+                    pred = (a + b) // 2
+                else:  # Paeth
+                    p = a + b - c
+                    pa, pb, pc = abs(p - a), abs(p - b), abs(p - c)
+                    pred = a if pa <= pb and pa <= pc else (b if pb <= pc else c)
+                cur[i] = (line[i] + pred) % 256
+        img[y] = cur
+    return img.reshape(h, w, ch)[..., :3]
+
+
+def _screenshot_rgb(path):
+    try:
+        from PIL import Image
+    except ImportError:  # pragma: no cover - Pillow comes with matplotlib (extra "viz")
+        return _png_rgb(str(path))
+    return np.asarray(Image.open(path).convert("RGB")).astype(np.int64)
+
+
+def _red_pixels(img):
+    """Pixels of the status view's dark red (invalid hexes), above the colour scale at the bottom."""
+    top = img[: int(0.8 * img.shape[0])]
+    return int(((top[..., 0] > 90) & (top[..., 1] < 50) & (top[..., 2] < 50)).sum())
+
+
+NO_XVFB = "xvfb-run is not installed (apt-get install xvfb)"
+
+
+def _gui_run(mesh, tmp_path, action):
+    shot = tmp_path / f"{action}.png"
+    proc = subprocess.run(["xvfb-run", "-a", sys.executable, "-m", "gmsh_plugin", mesh, "--auto-action", action,
+                           "--exit-after", "--screenshot", str(shot)], capture_output=True, text=True,
+                          env=_env(display=True), cwd=str(tmp_path), timeout=120)
+    assert "no display" not in proc.stderr, proc.stderr  # the GUI really ran
+    assert "Traceback" not in proc.stderr, proc.stderr
+    assert shot.exists() and shot.stat().st_size > 1000
+    img = _screenshot_rgb(shot)
+    assert len(np.unique(img.reshape(-1, 3), axis=0)) > 20  # not blank
+    return proc, img
+
+
+@pytest.mark.skipif(shutil.which("xvfb-run") is None, reason=NO_XVFB)
+def test_gui_event_loop_under_xvfb(demo, demo_msh, tmp_path):
+    _, _, _, ref = demo
+    proc, img = _gui_run(demo_msh, tmp_path, "check")
+    assert proc.returncode == 1, proc.stdout + proc.stderr
+    assert _counts_in(proc.stdout)["invalid"] == ref.counts()["invalid"]
+    assert _red_pixels(img) > 200  # the invalid hexes are drawn
+
+
+@pytest.mark.skipif(shutil.which("xvfb-run") is None, reason=NO_XVFB)
+def test_gui_repair_button_under_xvfb(tmp_path):
+    path = str(tmp_path / "repairable.msh")
+    gmsh.initialize(readConfigFiles=False)
+    gmsh.option.setNumber("General.Terminal", 0)
+    gm.add_hex_mesh(*_repairable())
+    gmsh.write(path)
+    gmsh.finalize()
+    proc, img = _gui_run(path, tmp_path, "repair")
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    assert "certified" in proc.stdout and _counts_in(proc.stdout)["invalid"] == 0
+    assert _red_pixels(img) == 0  # no invalid hex left to draw
+
+
+def test_png_decoder_reads_what_pil_writes(tmp_path):
+    PIL = pytest.importorskip("PIL.Image")
+    rng = np.random.default_rng(0)
+    a = (rng.integers(0, 4, (20, 30, 3)) * 60).astype(np.uint8)
+    PIL.fromarray(a).save(tmp_path / "x.png")
+    np.testing.assert_array_equal(_png_rgb(str(tmp_path / "x.png")), a)
+
+
+def test_public_names_resolve():
+    for name in gmsh_plugin.__all__:
+        assert getattr(gmsh_plugin, name) is not None
+    for mod in (gm, panel):
+        for name in mod.__all__:
+            assert hasattr(mod, name), (mod.__name__, name)

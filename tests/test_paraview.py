@@ -1,0 +1,219 @@
+"""The ParaView plugin in a real ``pvpython`` (Debian's ParaView 5.11 here; ``.ci/run`` installs it).
+
+Each test writes a .vtu, runs a pvpython script in a subprocess (``--force-offscreen-rendering``: no display
+needed), and compares what ParaView computed with ``hexsos_plugins.check`` / ``repair`` in this process.
+ParaView's Python finds the kernel's dependencies the way a user's would: ``HEXSOS_PYTHONPATH`` set to this
+interpreter's site-packages, the repository root found by the plugin itself (see
+``vtk_filter/hexsos_paraview_plugin.py``).
+"""
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+import sysconfig
+import textwrap
+
+import numpy as np
+import pytest
+
+PVPYTHON = shutil.which("pvpython")
+pytestmark = pytest.mark.skipif(
+    PVPYTHON is None, reason="pvpython is not installed (apt-get install paraview python3-paraview)")
+
+pytest.importorskip("vtkmodules.vtkIOXML")  # this process writes the .vtu files with PyPI's vtk
+
+import hexsos_plugins as hs  # noqa: E402
+import vtk_filter  # noqa: E402
+from hexsos_plugins.examples import structured_grid  # noqa: E402
+from test_vtk_filter import HEX, TETRA, VOXEL, make_grid, voxel_block  # noqa: E402
+from vtkmodules.vtkIOXML import vtkXMLUnstructuredGridWriter  # noqa: E402
+
+VTK_FILTER_DIR = os.path.dirname(os.path.abspath(vtk_filter.__file__))
+PLUGIN = os.path.join(VTK_FILTER_DIR, "hexsos_paraview_plugin.py")
+
+# Debian's ParaView 5.11 imports inspect.getargspec (gone in Python 3.11) before any plugin code runs
+PATCH = "import inspect\nif not hasattr(inspect, 'getargspec'):\n    inspect.getargspec = inspect.getfullargspec\n"
+
+REPORT = """
+def report(proxy, port=0):
+    from paraview import servermanager
+    from vtkmodules.util.numpy_support import vtk_to_numpy
+    data = servermanager.Fetch(proxy, idx=port)
+    out = {"class": data.GetClassName(), "cells": data.GetNumberOfCells(), "points": data.GetNumberOfPoints()}
+    for where, fd in (("cell", data.GetCellData()), ("point", data.GetPointData())):
+        for i in range(fd.GetNumberOfArrays()):
+            a = fd.GetArray(i)
+            if a is not None and fd.GetArrayName(i).startswith("hexsos_"):
+                out[where + ":" + fd.GetArrayName(i)] = vtk_to_numpy(a).tolist()
+    return out
+
+def versions():
+    import sys, numpy, scipy, clarabel, vtkmodules, hexsos_plugins
+    mods = {"numpy": numpy, "scipy": scipy, "clarabel": clarabel, "vtkmodules": vtkmodules,
+            "hexsos_plugins": hexsos_plugins}
+    return {"python": sys.version.split()[0],
+            **{k: [getattr(m, "__version__", "?"), m.__file__] for k, m in mods.items()}}
+"""
+
+
+def write_vtu(grid, path):
+    w = vtkXMLUnstructuredGridWriter()
+    w.SetFileName(str(path))
+    w.SetInputData(grid)
+    assert w.Write() == 1
+    return str(path)
+
+
+def run_pvpython(tmp_path, body, *, env_extra=None, patch=True, drop=()):
+    script = tmp_path / "script.py"
+    out = tmp_path / "out.json"
+    script.write_text((PATCH if patch else "") + REPORT + textwrap.dedent(body).replace("OUT", repr(str(out))))
+    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "PYTHONHOME", "PV_PLUGIN_PATH")}
+    # the dependencies of this interpreter, appended by the plugin after ParaView's own packages
+    paths = dict.fromkeys([sysconfig.get_paths()["purelib"], sysconfig.get_paths()["platlib"]])
+    env["HEXSOS_PYTHONPATH"] = os.pathsep.join(paths)
+    env["XDG_CONFIG_HOME"] = str(tmp_path / "config")  # no recorded paths from the user's home
+    env.update(env_extra or {})
+    for key in drop:
+        env.pop(key, None)
+    proc = subprocess.run([PVPYTHON, "--force-offscreen-rendering", str(script)], cwd=tmp_path, env=env,
+                          capture_output=True, text=True, timeout=600, check=False)
+    assert proc.returncode == 0 and out.exists(), (
+        f"pvpython failed (rc {proc.returncode}); this Python is {sys.version.split()[0]}\n"
+        f"stdout:\n{proc.stdout[-4000:]}\nstderr:\n{proc.stderr[-4000:]}")
+    return json.loads(out.read_text()), proc
+
+
+@pytest.fixture(scope="module")
+def mixed_vtu(tmp_path_factory):
+    """The demo mesh (Gmsh; a structured grid with a pushed vertex without it), a folded voxel block and a tet."""
+    try:
+        from hexsos_plugins.examples import demo_mesh
+
+        P, H, _ = demo_mesh()
+    except hs.DependencyError:
+        P, H = structured_grid(4)
+        P[np.flatnonzero(np.all(np.isclose(P, 0.5), axis=1))[0], 0] += 0.4
+    Pv, V, Hv = voxel_block()
+    n0 = P.shape[0]
+    points = np.concatenate([P, Pv])
+    cells = [(TETRA, H[0][[0, 1, 3, 4]])] + [(HEX, h) for h in H] + [(VOXEL, n0 + v) for v in V]
+    hexes = np.concatenate([H, n0 + Hv])
+    path = write_vtu(make_grid(points, cells), tmp_path_factory.mktemp("pv") / "mixed.vtu")
+    return path, hs.check(points, hexes), 1 + np.arange(hexes.shape[0])
+
+
+def test_check_filter_by_label_in_pvpython(tmp_path, mixed_vtu):
+    path, expected, hex_cells = mixed_vtu
+    tets = write_vtu(make_grid(np.eye(4)[:, :3], [(TETRA, [0, 1, 2, 3])]), tmp_path / "tets.vtu")
+    res, proc = run_pvpython(tmp_path, f"""
+        import json
+        from paraview.simple import *
+        LoadPlugin({PLUGIN!r}, ns=globals())
+        reader = XMLUnstructuredGridReader(FileName=[{path!r}])
+        check = HexSOSCheck(Input=reader)   # paraview.simple names the filter after its label
+        check.Method = "auto"
+        check.UpdatePipeline()
+        proxy = check.SMProxy
+        hints = proxy.GetHints()
+        menu = hints.FindNestedElementByName("ShowInMenu") if hints else None
+        result = {{"mesh": report(check, 0), "folds": report(check, 1),
+                  "ports": proxy.GetNumberOfOutputPorts(),
+                  "port_names": [proxy.GetOutputPortName(i) for i in range(proxy.GetNumberOfOutputPorts())],
+                  "label": proxy.GetXMLLabel(), "category": menu.GetAttribute("category") if menu else None,
+                  "properties": sorted(check.ListProperties()),
+                  "repair_properties": sorted(HexSOSRepair(Input=reader).ListProperties()),
+                  "versions": versions()}}
+        # a grid without hexahedra: an error message, no crash, an empty output
+        bad = HexSOSCheck(Input=XMLUnstructuredGridReader(FileName=[{tets!r}]))
+        bad.UpdatePipeline()
+        result["no_hex"] = report(bad, 0)
+        json.dump(result, open(OUT, "w"))
+    """)
+    mesh, folds = res["mesh"], res["folds"]
+    status = np.array(mesh["cell:hexsos_status"])
+    assert status[0] == -2 and np.isnan(mesh["cell:hexsos_min_det"][0])
+    assert status[hex_cells].tolist() == expected.status.tolist()
+    # ParaView's Python runs the kernel on its own numpy (1.24) and scipy (1.10): equal up to the polish
+    assert np.allclose(np.array(mesh["cell:hexsos_min_det"])[hex_cells], expected.min_det, rtol=1e-9, atol=1e-12)
+    assert np.allclose(np.array(mesh["cell:hexsos_argmin"])[hex_cells], expected.argmin, rtol=0, atol=1e-6)
+    counts = expected.counts()
+    assert (status == 0).sum() == counts["invalid"] >= 3 and counts["invalid_inside_only"] >= 1
+    # the second output port: one point per invalid hex
+    assert res["ports"] == 2 and res["port_names"] == ["Checked Mesh", "Fold Points"]
+    assert folds["class"] == "vtkPolyData" and folds["points"] == counts["invalid"]
+    assert sum(folds["point:hexsos_invalid_inside_only"]) == counts["invalid_inside_only"]
+    assert res["label"] == "HexSOS Check" and res["category"] == "Mesh Quality"
+    assert res["properties"] == ["Input", "Method", "Relaxation"]
+    assert res["repair_properties"] == ["Input", "Margin", "MaxIterations", "Method", "PinBoundary",
+                                        "PinNonHexPoints", "Relaxation", "Rho"]
+    assert res["no_hex"]["cells"] == 0 and "no hexahedra" in proc.stderr
+    # ParaView's own numpy and VTK stay first on sys.path; the rest comes from HEXSOS_PYTHONPATH / the repo
+    v = res["versions"]
+    ours = [sysconfig.get_paths()["purelib"], sysconfig.get_paths()["platlib"]]
+    assert not any(v["vtkmodules"][1].startswith(p) for p in ours), v  # PyPI's vtk there would crash ParaView
+    assert v["hexsos_plugins"][1] == hs.__file__
+    print(json.dumps(v, indent=1))
+
+
+def test_repair_filter_in_pvpython(tmp_path):
+    P, H = structured_grid(3)
+    P[np.flatnonzero(np.all(np.isclose(P, 1 / 3), axis=1))[0], 0] += 0.4
+    path = write_vtu(make_grid(P, [(HEX, h) for h in H]), tmp_path / "damaged.vtu")
+    from hexsos_plugins import repair
+
+    expected = repair(P, H)
+    assert expected.success
+    res, _ = run_pvpython(tmp_path, f"""
+        import json
+        from paraview.simple import *
+        LoadPlugin({PLUGIN!r}, ns=globals())
+        repaired = HexSOSRepair(Input=XMLUnstructuredGridReader(FileName=[{path!r}]))
+        repaired.Rho = 200.0
+        repaired.UpdatePipeline()
+        json.dump(report(repaired), open(OUT, "w"))
+    """)
+    assert set(res["cell:hexsos_status"]) == {1}
+    disp = np.array(res["point:hexsos_displacement"])
+    assert np.allclose(disp, expected.displacement, rtol=0, atol=1e-9)
+
+
+def test_plugin_autoloads_from_pv_plugin_path_with_the_compat_directory(tmp_path, mixed_vtu):
+    """The GUI's way: PV_PLUGIN_PATH names vtk_filter/ (every .py in it gets loaded, __init__.py too) and
+    PYTHONPATH the directory whose usercustomize.py patches inspect; the script itself patches nothing."""
+    path, expected, _ = mixed_vtu
+    res, proc = run_pvpython(tmp_path, f"""
+        import json
+        from paraview.simple import *
+        check = HexSOSCheck(Input=XMLUnstructuredGridReader(FileName=[{path!r}]))
+        check.UpdatePipeline()
+        json.dump(report(check, 1), open(OUT, "w"))
+    """, patch=False, env_extra={"PV_PLUGIN_PATH": VTK_FILTER_DIR,
+                                 "PYTHONPATH": os.path.join(VTK_FILTER_DIR, "paraview_compat")})
+    assert res["points"] == expected.counts()["invalid"]
+    assert "Failed to load" not in proc.stderr and "Traceback" not in proc.stderr
+
+
+def test_missing_dependencies_are_a_vtk_error_that_says_what_to_set(tmp_path, mixed_vtu):
+    """Without HEXSOS_PYTHONPATH (nor a virtual environment or recorded paths) ParaView's Python finds the
+    repository's hexsos_plugins but not this interpreter's clarabel: the filter reports what to set."""
+    path = mixed_vtu[0]
+    res, proc = run_pvpython(tmp_path, f"""
+        import json
+        from paraview.simple import *
+        LoadPlugin({PLUGIN!r}, ns=globals())
+        check = HexSOSCheck(Input=XMLUnstructuredGridReader(FileName=[{path!r}]))
+        check.UpdatePipeline()
+        try:
+            import clarabel
+            found = True
+        except ImportError:
+            found = False
+        json.dump({{"cells": report(check)["cells"], "clarabel": found}}, open(OUT, "w"))
+    """, drop=("HEXSOS_PYTHONPATH", "VIRTUAL_ENV"))
+    if res["clarabel"]:
+        pytest.skip("ParaView's Python finds clarabel on its own here")
+    assert res["cells"] == 0
+    assert "cannot import the hexsos kernel" in proc.stderr and "HEXSOS_PYTHONPATH" in proc.stderr

@@ -1,0 +1,367 @@
+"""Repair: Algorithm 1 (per hex), Algorithm 2 (mesh), pinning, fidelity and ``hexsos repair`` end to end.
+
+Every verdict after a repair is re-established by an independent ``check`` call on the returned coordinates
+(never taken from the repair's own bookkeeping).
+"""
+
+import hashlib
+import json
+
+import meshio
+import numpy as np
+import pytest
+
+import hexsos_plugins as hs
+from hexsos_plugins import meshrepair as rp
+from hexsos_plugins.errors import DependencyError, InvalidInputError
+from hexsos_plugins.examples import (demo_mesh, gmsh_mesh, hexes_to_mesh, inside_invalid_hex, random_hexes,
+                                     structured_grid, twisted_hex, unit_cube)
+from hexsos_plugins.hexahedron import det_at
+from oracle import dense_min
+
+
+def _status(X):
+    return hs.check(*hexes_to_mesh(X)).status
+
+
+def _fingerprint(*arrays):
+    return [hashlib.sha256(np.ascontiguousarray(a).tobytes()).hexdigest() + str(a.dtype) + str(a.shape)
+            for a in arrays]
+
+
+def _perturbed(kind, n, *, frac, amp, seed):
+    """A Gmsh mesh with a fraction of its interior vertices moved by Gaussian noise of amp x edge length."""
+    P, H = gmsh_mesh(kind, n)
+    P = P.copy()
+    interior = np.flatnonzero(~rp.boundary_vertex_mask(H, len(P)))
+    rng = np.random.default_rng(seed)
+    pick = rng.choice(interior, size=max(1, int(frac * interior.size)), replace=False)
+    h = float(np.median(rp.hex_edge_length(P[H])))
+    P[pick] += amp * h * rng.standard_normal((pick.size, 3))
+    return P, H
+
+
+# ------------------------------------------------------------------------------------------------ Algorithm 1
+
+
+def test_random_invalid_hexes_become_proven_valid_and_valid_ones_stay_bit_for_bit():
+    X = random_hexes(300, sigma=0.3, seed=7)
+    before = _status(X)
+    assert 60 < (before != 1).sum() < 240  # both kinds present
+    fp = _fingerprint(X)
+    Y, info = rp.repair_hex(X)
+    assert _fingerprint(X) == fp  # input not mutated
+    after = _status(Y)
+    assert (after == 1).all()
+    assert info["valid"].all() and (info["status"] == after).all()
+    valid = before == 1
+    assert np.array_equal(Y[valid], X[valid])  # bit for bit
+    assert (info["steps"][valid] == 0).all()
+    assert np.any(Y[~valid] != X[~valid], axis=(1, 2)).all()
+    # Table 1 counting: one kernel evaluation per projection plus the first check
+    assert info["sos_steps_total"] == info["projection_steps"] + 300
+    # the repair is small: median Frobenius move well under one edge length
+    d = np.linalg.norm((Y - X)[~valid].reshape(-1, 24), axis=1)
+    assert np.median(d) < 0.3
+
+
+def test_inside_invalid_and_twisted_hexes_are_repaired():
+    X = np.stack([inside_invalid_hex(), twisted_hex(np.pi), twisted_hex(np.pi, shear=0.5)])
+    r0 = hs.check(*hexes_to_mesh(X))
+    assert r0.status.tolist() == [0, 0, 0]
+    assert (r0.corner_min_det > 0).all()  # corner checks see nothing wrong in any of them
+    Y, info = rp.repair_hex(X)
+    assert (_status(Y) == 1).all()
+    # independent oracle: the dense minimum of det J is positive too
+    dense, _, _ = dense_min(Y)
+    assert (dense > 0).all()
+    # margin: det J at the last argmin is at least the margin asked (relative to the hex's size)
+    h3 = rp.hex_edge_length(X) ** 3
+    assert (det_at(Y, info["argmin"])[0] >= 0.99 * rp.DEFAULT_MARGIN * h3).all()
+
+
+def test_single_hex_shape_and_valid_hex_unchanged():
+    cube = unit_cube()
+    Y, info = rp.repair_hex(cube)
+    assert Y.shape == (8, 3) and np.array_equal(Y, cube) and Y is not cube
+    assert info["projection_steps"] == 0 and info["sos_steps_total"] == 1
+    mirrored = cube * [-1, 1, 1]  # inverted everywhere: det J = -1
+    Y, info = rp.repair_hex(mirrored)
+    assert _status(Y[None])[0] == 1
+    # a flat hex (det J == 0 everywhere: undecided) has no gradient to follow at first; it is repaired too
+    P, H = hexes_to_mesh(np.stack([cube * [1, 1, 0], cube]))
+    r = rp.repair(P, H)
+    assert r.stats["undecided_before"] == 1 and r.success and (hs.check(r.points, H).status == 1).all()
+    assert np.array_equal(r.points[8:], P[8:])  # the valid hex beside it (no shared vertex) never moved
+
+
+def test_margin_must_be_positive_and_shapes_checked():
+    for bad in (0.0, -1e-3, float("nan")):
+        with pytest.raises(InvalidInputError, match="margin"):
+            rp.repair_hex(inside_invalid_hex(), margin=bad)
+    with pytest.raises(InvalidInputError, match="shape"):
+        rp.repair_hex(np.zeros((7, 3)))
+    P, H = hexes_to_mesh(inside_invalid_hex())
+    with pytest.raises(InvalidInputError, match="rho"):
+        rp.repair(P, H, rho=0)
+    with pytest.raises(InvalidInputError, match="anchor"):
+        rp.repair(P, H, anchor="nowhere")
+
+
+def test_projection_is_feasible_and_matches_a_generic_solver():
+    from scipy.optimize import minimize
+
+    # the exact projection onto intersections of half-spaces against SLSQP (the oracle), random problems
+    rng = np.random.default_rng(3)
+    G = rng.standard_normal((60, 4, 5))
+    b = rng.standard_normal((60, 4))
+    act = rng.random((60, 4)) < 0.75
+    y, ok = rp._halfspace_projection(G, b, act)
+    assert ok.all()
+    for i in range(60):
+        cons = [{"type": "ineq", "fun": (lambda z, g=G[i, j], c=b[i, j]: g @ z - c)} for j in range(4) if act[i, j]]
+        ref = minimize(lambda z: z @ z, np.zeros(5), constraints=cons, method="SLSQP",
+                       options={"ftol": 1e-14, "maxiter": 500})
+        assert y[i] @ y[i] == pytest.approx(ref.fun, rel=1e-6, abs=1e-12)
+        assert (G[i, act[i]] @ y[i] >= b[i, act[i]] - 1e-8).all()
+    # (R) on hexes: det J(u*) reaches the floor, judged by evaluating it; pinned vertices do not move
+    X = random_hexes(50, sigma=0.3, seed=5)
+    r = hs.check(*hexes_to_mesh(X))
+    bad = np.flatnonzero(r.status != 1)
+    uvw = r.argmin[bad][:, None, :]
+    floor = 1e-3 * rp.hex_edge_length(X[bad]) ** 3
+    free = np.ones((bad.size, 8), dtype=bool)
+    free[:, 0] = False
+    Y, feas, stuck = rp._project(X[bad], uvw, np.ones((bad.size, 1), bool), 1.25 * floor, floor, free,
+                                 np.full(bad.size, 10.0))
+    d = det_at(Y, r.argmin[bad])[0]
+    assert (feas == (d >= floor)).all() and feas.mean() > 0.9
+    assert np.array_equal(Y[:, 0], X[bad, 0])
+
+
+# ------------------------------------------------------------------------------------------------ Algorithm 2
+
+
+@pytest.fixture(scope="module")
+def demo():
+    P, H, info = demo_mesh()
+    return P, H, info
+
+
+def test_demo_mesh_repaired_certified_and_local(demo):
+    P, H, info = demo
+    fp = _fingerprint(P, H)
+    r0 = hs.check(P, H)
+    assert (r0.status == 0).sum() >= 3 and r0.invalid_inside_only.any()
+    r = rp.repair(P, H)
+    assert _fingerprint(P, H) == fp  # inputs not mutated
+    assert r.points is not P and r.points.shape == P.shape
+    assert r.success, r.message
+    chk = hs.check(r.points, H)  # independent certificate
+    assert (chk.status == 1).all()
+    assert np.array_equal(r.check.status, chk.status)
+    assert np.array_equal(r.displacement, r.points - P)
+    s = r.stats
+    assert s["invalid_before"] == int((r0.status == 0).sum()) and s["invalid_after"] == 0
+    assert s["outer_iterations"] == len(r.history) - 1 and s["outer_iterations"] >= 1
+    assert s["sos_steps"] == sum(h["sos_steps"] for h in r.history)
+    assert s["projection_steps"] == sum(h["projection_steps"] for h in r.history) > 0
+    assert r.history[0]["invalid"] == s["invalid_before"] and r.history[-1]["invalid"] == 0
+    # locality: vertices two or more hex rings away from every initially invalid hex do not move at all
+    near = np.zeros(len(P), dtype=bool)
+    near[H[r0.status != 1].ravel()] = True
+    for _ in range(2):
+        near[H[near[H].any(axis=1)].ravel()] = True
+    norm = np.linalg.norm(r.displacement, axis=1)
+    assert near.sum() < 0.4 * len(P)
+    assert norm[~near].max() == 0.0
+    assert s["moved_vertices"] == int((norm > 0).sum()) < 0.1 * len(P)
+    assert s["max_displacement"] == pytest.approx(norm.max())
+
+
+def test_perturbed_gmsh_mesh_all_proven_valid_connectivity_unchanged():
+    P, H = _perturbed("ring", 6, frac=0.04, amp=0.5, seed=11)
+    H_copy = H.copy()
+    r0 = hs.check(P, H)
+    assert (r0.status != 1).sum() >= 10
+    seen = []
+    r = rp.repair(P, H, progress=lambda d, t: seen.append((d, t)), callback=lambda e, V: None)
+    assert r.success, r.message
+    assert (hs.check(r.points, H).status == 1).all()
+    assert np.array_equal(H, H_copy)
+    assert seen[-1][0] == seen[-1][1] == (r0.status != 1).sum()
+    # far from the damage nothing moves; where it moves, by less than an edge length on average
+    h = float(np.median(rp.hex_edge_length(P[H])))
+    assert r.stats["mean_displacement"] < 0.5 * h
+    assert r.stats["moved_vertices"] < 0.25 * len(P)
+
+
+def test_bunny_45_invalid_before_0_after_certified(bunny_path):
+    from hexsos_plugins.io import read
+
+    mesh = read(bunny_path)
+    r0 = hs.check(mesh.points, mesh.hexes)
+    assert int((r0.status == 0).sum()) == 45
+    r = rp.repair(mesh.points, mesh.hexes)
+    assert r.success and r.stats["invalid_before"] == 45 and r.stats["invalid_after"] == 0
+    assert (hs.check(r.points, mesh.hexes).status == 1).all()
+    assert r.stats["seconds"] < 60  # 0.2-0.3 s measured; generous on a shared machine
+
+
+def test_max_iter_reached_returns_best_mesh_and_says_so():
+    # a corner vertex of a 2x2x2 grid pushed through the mesh's centre: a severe tangle
+    P, H = structured_grid(2)
+    P = P.copy()
+    P[0] = [0.8, 0.8, 0.8]
+    r = rp.repair(P, H, max_iter=0)
+    assert not r.success and "max_iter" in r.message
+    assert np.array_equal(r.points, P) and r.stats["outer_iterations"] == 0
+    r = rp.repair(P, H, max_iter=5)
+    assert not r.success and r.stats["outer_iterations"] == 5
+    # the best mesh seen: no more hexes not proven valid than any iteration recorded
+    bad = [h["invalid"] + h["undecided"] for h in r.history]
+    assert r.stats["invalid_after"] + r.stats["undecided_after"] == min(bad)
+
+
+# ------------------------------------------------------------------------------------------------ pinning
+
+
+def test_pinned_boundary_does_not_move_at_all(demo):
+    P, H, info = demo
+    r = rp.repair(P, H, pin_boundary=True)
+    assert r.success, r.message
+    assert (hs.check(r.points, H).status == 1).all()
+    b = rp.boundary_vertex_mask(H, len(P))
+    assert b.sum() == r.stats["pinned_vertices"] > 0
+    assert np.array_equal(r.points[b], P[b])  # exactly 0
+    assert r.stats["max_displacement"] > 0  # interior vertices did move
+    # the inside-only hex sits on the boundary, its distorted face pinned: repaired through its inner vertices
+    assert set(info["inside_only_vertices"]) <= set(np.flatnonzero(b))
+
+
+def test_pinned_repair_that_cannot_succeed_says_why():
+    P, H = hexes_to_mesh(inside_invalid_hex())  # one hex: every vertex is on the boundary
+    r = rp.repair(P, H, pin_boundary=True)
+    assert not r.success and "pin" in r.message and np.array_equal(r.points, P)
+    # a hex with 7 of 8 vertices on the boundary of a 2x2x2 grid, its corner pushed through the mesh
+    P, H = structured_grid(2)
+    P = P.copy()
+    P[0] = [0.8, 0.8, 0.8]
+    r = rp.repair(P, H, pin_boundary=True)
+    assert not r.success and "pin" in r.message
+    b = rp.boundary_vertex_mask(H, len(P))
+    assert np.array_equal(r.points[b], P[b])
+
+
+# ------------------------------------------------------------------------------------------------ fidelity
+
+
+def test_boundary_fidelity_measures_what_moved():
+    pytest.importorskip("pymeshlab")
+    from hexsos_plugins.fidelity import boundary_fidelity
+
+    P, H = structured_grid(3)
+    f = boundary_fidelity(P, P, H)
+    assert f["hausdorff_max"] == 0.0 and f["boundary_quads"] == 54 and f["self_intersecting_after"] == 0
+    # an interior vertex moved: the boundary did not
+    inner = np.flatnonzero(~rp.boundary_vertex_mask(H, len(P)))[0]
+    Q = P.copy()
+    Q[inner] += 0.1
+    assert boundary_fidelity(P, Q, H)["hausdorff_max"] == 0.0
+    # a top-face vertex lifted by 0.05 along the normal: the Hausdorff distance is 0.05
+    top = np.flatnonzero((P[:, 2] == 1.0) & (P[:, 0] > 0) & (P[:, 0] < 1) & (P[:, 1] > 0) & (P[:, 1] < 1))[0]
+    Q = P.copy()
+    Q[top, 2] += 0.05
+    f = boundary_fidelity(P, Q, H)
+    assert f["hausdorff_max"] == pytest.approx(0.05, rel=1e-4)
+    assert f["hausdorff_max_relative"] == pytest.approx(0.05 / np.sqrt(3), rel=1e-4)
+    assert 0 < f["hausdorff_mean"] < 0.05
+    # pushed down through the bottom: its boundary faces cross other boundary faces
+    Q[top, 2] = -0.5
+    f = boundary_fidelity(P, Q, H)
+    assert f["self_intersecting_before"] == 0 and f["self_intersecting_after"] > 0
+
+
+def test_fidelity_without_pymeshlab_names_the_extra(monkeypatch):
+    import sys
+
+    from hexsos_plugins.fidelity import boundary_fidelity
+
+    monkeypatch.setitem(sys.modules, "pymeshlab", None)
+    P, H = structured_grid(1)
+    with pytest.raises(DependencyError, match="fidelity"):
+        boundary_fidelity(P, P, H)
+
+
+# ------------------------------------------------------------------------------------------------ CLI
+
+
+def _write_input(path, P, H):
+    """A mesh with more than hexes: a quad block, point/cell/field data."""
+    quads = __import__("hexsos_plugins.fidelity", fromlist=["boundary_quads"]).boundary_quads(H)
+    m = meshio.Mesh(
+        P, [("hexahedron", H), ("quad", quads)],
+        point_data={"temperature": np.arange(len(P), dtype=np.float64)},
+        cell_data={"region": [np.full(len(H), 7, dtype=np.int32), np.full(len(quads), 3, dtype=np.int32)]},
+        field_data={"units": np.array([1.0])},
+    )
+    m.write(path)
+    return m
+
+
+def test_cli_repair_end_to_end(tmp_path, demo, capsys):
+    from hexsos_plugins.cli import main
+
+    P, H, _ = demo
+    src = tmp_path / "in.vtu"
+    m = _write_input(str(src), P, H)
+    raw = src.read_bytes()
+    out, png = tmp_path / "out.vtu", tmp_path / "conv.png"
+    rc = main(["repair", str(src), "-o", str(out), "--json", "--plot", str(png), "--no-progress"])
+    stdout = capsys.readouterr().out
+    assert rc == 0
+    assert src.read_bytes() == raw  # input untouched
+    d = json.loads(stdout)
+    for key in ("hexes", "invalid_before", "invalid_after", "outer_iterations", "sos_steps", "projection_steps",
+                "seconds", "max_displacement", "hausdorff"):
+        assert key in d, key
+    assert d["hexes"] == len(H) and d["invalid_after"] == 0 and d["invalid_before"] > 0
+    assert d["output_certified"] is True
+    if d["hausdorff"] is not None:
+        assert d["hausdorff"] > 0  # the inside-only hex's boundary face was moved back
+    # OUT: every input block and array, the same connectivity, plus the new arrays
+    o = meshio.read(str(out))
+    assert [c.type for c in o.cells] == [c.type for c in m.cells]
+    assert np.array_equal(o.cells[0].data, H) and np.array_equal(o.cells[1].data, m.cells[1].data)
+    assert np.array_equal(o.point_data["temperature"], m.point_data["temperature"])
+    assert np.array_equal(o.cell_data["region"][0], m.cell_data["region"][0])
+    assert "hexsos_displacement" in o.point_data and "hexsos_status" in o.cell_data
+    assert np.array_equal(o.point_data["hexsos_displacement"], o.points - P)
+    assert (o.cell_data["hexsos_status"][0] == 1).all()
+    assert (hs.check(o.points, o.cells[0].data).status == 1).all()  # certified as written
+    with open(png, "rb") as f:
+        assert f.read(8) == b"\x89PNG\r\n\x1a\n"
+    assert png.stat().st_size > 5000
+
+
+def test_cli_repair_not_successful_exit_1_and_output_written(tmp_path, capsys):
+    from hexsos_plugins.cli import main
+
+    P, H = structured_grid(2)
+    P = P.copy()
+    P[0] = [0.8, 0.8, 0.8]
+    src, out = tmp_path / "in.vtk", tmp_path / "out.vtk"
+    meshio.write(str(src), meshio.Mesh(P, [("hexahedron", H)]), binary=False)
+    rc = main(["repair", str(src), "-o", str(out), "--max-iter", "2", "--no-fidelity"])
+    text = capsys.readouterr().out
+    assert rc == 1 and out.exists() and "NOT all hexes proven valid" in text
+    # the input as output is refused
+    rc = main(["repair", str(src), "-o", str(src)])
+    assert rc == 2 and "input" in capsys.readouterr().err
+
+
+def test_docstring_examples_run():
+    import doctest
+
+    failures, tried = doctest.testmod(rp, verbose=False)
+    assert tried >= 2 and failures == 0

@@ -1,0 +1,723 @@
+"""hexsos as VTK filters and as a ParaView plugin (this one file is both).
+
+Plain VTK (PyPI ``vtk`` >= 9.2; ParaView is not needed)::
+
+    from vtk_filter import HexSOSCheckFilter
+    f = HexSOSCheckFilter()
+    f.SetInputDataObject(0, grid)          # a vtkUnstructuredGrid (or SetInputConnection)
+    f.SetMethod("auto")                     # "auto" | "sos"
+    f.Update()
+    checked = f.GetOutputDataObject(0)      # the grid with the hexsos_* cell arrays
+    folds = f.GetOutputDataObject(1)        # vtkPolyData: where each invalid hex folds
+    f.GetResult()                           # the kernel's CheckResult (counts, summary())
+
+ParaView (>= 5.10): load this file with Tools > Manage Plugins > Load New, or put the directory that holds
+it on ``PV_PLUGIN_PATH``. The filters "HexSOS Check" and "HexSOS Repair" appear under Filters > Mesh Quality
+(``paraview.simple.HexSOSCheck`` / ``HexSOSRepair`` in Python). ParaView loads *every* ``.py`` file of a
+``PV_PLUGIN_PATH`` directory as a plugin: that is why the filters live in this file and why
+``vtk_filter/__init__.py`` only defines lazy attributes (loading it registers nothing and runs no code).
+
+How ParaView's Python finds the kernel and its dependencies (numpy, scipy, clarabel, meshio): inside
+ParaView this file *appends* (never prepends: a virtual environment first on ``sys.path`` makes ParaView load
+PyPI's ``vtkmodules`` and crash) to ``sys.path``, in this order, the directories that exist of
+
+1. ``HEXSOS_PYTHONPATH`` (``os.pathsep``-separated), e.g. the site-packages of the Python where
+   ``pip install hexsos`` ran;
+2. the directory that holds the ``vtk_filter`` package this file belongs to, if it also holds
+   ``hexsos_plugins`` (a repository checkout, or site-packages itself for a regular install);
+3. ``$VIRTUAL_ENV/lib/pythonX.Y/site-packages`` when ParaView runs inside an activated virtual environment
+   with ParaView's Python version X.Y;
+4. the directories recorded by ``python -m vtk_filter.hexsos_paraview_plugin --record`` (run with the Python
+   where hexsos is installed) in ``$XDG_CONFIG_HOME/hexsos/paraview-paths.txt`` (default ``~/.config``).
+
+ParaView's own numpy, scipy and VTK stay first. The compiled dependencies (clarabel) must be built for
+ParaView's Python version. ``python -m vtk_filter.hexsos_paraview_plugin`` prints the environment lines to
+use. The kernel is imported lazily, on the first execution, so ParaView starts fast and a missing dependency
+is reported as a VTK error that names what to set.
+
+Debian's ParaView 5.11 on Python 3.11 cannot load any Python plugin (its loader imports
+``inspect.getargspec``, removed in Python 3.11) unless ``inspect.getargspec = inspect.getfullargspec`` ran
+first: in ``pvpython`` scripts do it before ``LoadPlugin``; for the GUI and ``PV_PLUGIN_PATH`` put
+``vtk_filter/paraview_compat`` (its ``usercustomize.py`` does it) on ``PYTHONPATH``.
+"""
+
+from __future__ import annotations
+
+import inspect
+import os
+import sys
+
+if not hasattr(inspect, "getargspec"):  # ParaView 5.11's decorators call it (Python >= 3.11 removed it)
+    inspect.getargspec = inspect.getfullargspec
+
+import numpy as np
+from vtkmodules.util.numpy_support import numpy_to_vtk, numpy_to_vtkIdTypeArray, vtk_to_numpy
+from vtkmodules.util.vtkAlgorithm import VTKPythonAlgorithmBase
+from vtkmodules.vtkCommonCore import (
+    VTK_UNSIGNED_CHAR,
+    vtkCommand,
+    vtkDataArray,
+    vtkObject,
+    vtkOutputWindow,
+    vtkPoints,
+    vtkStringArray,
+    vtkVersion,
+)
+from vtkmodules.vtkCommonDataModel import vtkCellArray, vtkDataObject, vtkPolyData, vtkUnstructuredGrid
+
+try:  # the decorators exist only inside ParaView; without it they do nothing
+    from paraview.util.vtkAlgorithm import smdomain, smhint, smproperty, smproxy
+
+    IN_PARAVIEW = True
+except ImportError:
+    IN_PARAVIEW = False
+
+    class _NoDecorators:
+        """Stands for ParaView's ``smproxy``/``smproperty``/``smdomain``/``smhint``: every decorator is a no-op."""
+
+        def __getattr__(self, name):
+            def factory(*args, **kwargs):
+                return lambda obj: obj
+
+            return factory
+
+    smproxy = smproperty = smdomain = smhint = _NoDecorators()
+
+__all__ = [
+    "HexSOSCheckFilter",
+    "HexSOSRepairFilter",
+    "VTK_HEXAHEDRON",
+    "VTK_VOXEL",
+    "STATUS_NOT_A_HEX",
+    "dependency_paths",
+    "IN_PARAVIEW",
+]
+
+paraview_plugin_name = "HexSOS"
+paraview_plugin_version = "0.1"
+
+#: VTK cell types checked: hexahedra, and voxels (converted to hexahedron node order for the kernel).
+VTK_HEXAHEDRON = 12
+VTK_VOXEL = 11
+#: ``hexsos_status`` of a cell that is not a hexahedron (the kernel's verdicts are 1, 0, -1).
+STATUS_NOT_A_HEX = -2
+
+_HERE = os.path.dirname(os.path.abspath(__file__))
+_RECORD_NAME = os.path.join("hexsos", "paraview-paths.txt")
+
+
+# ----------------------------------------------------------------------------------------------------
+# Where ParaView's Python finds hexsos_plugins and its dependencies
+# ----------------------------------------------------------------------------------------------------
+
+
+def _record_file() -> str:
+    base = os.environ.get("XDG_CONFIG_HOME") or os.path.join(os.path.expanduser("~"), ".config")
+    return os.path.join(base, _RECORD_NAME)
+
+
+def _recorded_paths() -> list:
+    try:
+        with open(_record_file(), encoding="utf-8") as fh:
+            return [line.strip() for line in fh if line.strip() and not line.lstrip().startswith("#")]
+    except OSError:
+        return []
+
+
+def dependency_paths() -> list:
+    """The directories this plugin appends to ``sys.path`` inside ParaView, in order (see the module's doc)."""
+    paths = [p for p in os.environ.get("HEXSOS_PYTHONPATH", "").split(os.pathsep) if p]
+    root = os.path.dirname(_HERE)
+    if os.path.isdir(os.path.join(root, "hexsos_plugins")):
+        paths.append(root)
+    venv = os.environ.get("VIRTUAL_ENV")
+    if venv:
+        paths.append(os.path.join(venv, "lib", f"python{sys.version_info[0]}.{sys.version_info[1]}", "site-packages"))
+    paths += _recorded_paths()
+    seen, out = set(), []
+    for p in paths:
+        p = os.path.abspath(os.path.expanduser(p))
+        if p not in seen and os.path.isdir(p):
+            seen.add(p)
+            out.append(p)
+    return out
+
+
+def _append_dependency_paths() -> list:
+    added = []
+    for p in dependency_paths():
+        if p not in sys.path:
+            sys.path.append(p)  # APPEND: ParaView's own vtkmodules and numpy must stay first
+            added.append(p)
+    return added
+
+
+if IN_PARAVIEW:
+    _append_dependency_paths()
+
+
+class _KernelUnavailable(Exception):
+    pass
+
+
+def _kernel(*submodules):
+    """The hexsos kernel package, imported on first use with ``submodules`` and the dependencies it may need
+    (a missing one is reported now, with what to set, rather than in the middle of a check)."""
+    import importlib
+
+    try:
+        import hexsos_plugins
+
+        for name in ("scipy.optimize", "clarabel") + tuple(f"hexsos_plugins.{m}" for m in submodules):
+            importlib.import_module(name)
+    except ImportError as exc:
+        raise _KernelUnavailable(
+            f"cannot import the hexsos kernel in this Python {sys.version.split()[0]} ({sys.executable}): "
+            f"{type(exc).__name__}: {exc}. Set HEXSOS_PYTHONPATH to the site-packages of the Python where hexsos "
+            f"is installed (same Python version), or run 'python -m vtk_filter.hexsos_paraview_plugin --record' "
+            f"with that Python; searched: {dependency_paths() or 'nothing'}") from exc
+    return hexsos_plugins
+
+
+# ----------------------------------------------------------------------------------------------------
+# VTK <-> arrays
+# ----------------------------------------------------------------------------------------------------
+
+_VTK_VERSION = (vtkVersion.GetVTKMajorVersion(), vtkVersion.GetVTKMinorVersion())
+
+
+def _to_numpy(arr) -> np.ndarray:
+    """A numpy view (or, for implicit/non-contiguous VTK arrays, a copy) of a vtkDataArray."""
+    try:
+        return vtk_to_numpy(arr)
+    except Exception:  # implicit arrays (fixed-size cell storage, constant types) have no raw buffer
+        copy = vtkDataArray.CreateDataArray(arr.GetDataType())
+        copy.DeepCopy(arr)
+        return vtk_to_numpy(copy).copy()
+
+
+def _cell_types(grid) -> np.ndarray:
+    """The VTK cell type of every cell, (C,) uint8."""
+    if grid.GetNumberOfCells() == 0:
+        return np.zeros(0, dtype=np.uint8)
+    # VTK >= 9.6 returns the per-cell array from GetCellTypes() (GetCellTypesArray is deprecated); before,
+    # GetCellTypes(vtkCellTypes) filled the distinct types and GetCellTypesArray() was the per-cell array.
+    arr = grid.GetCellTypes() if _VTK_VERSION >= (9, 6) else grid.GetCellTypesArray()
+    return np.asarray(_to_numpy(arr), dtype=np.uint8)
+
+
+def _cells(grid):
+    """Offsets (C+1,) and connectivity of the grid's cells (numpy, possibly views)."""
+    cells = grid.GetCells()
+    if cells is None or grid.GetNumberOfCells() == 0:
+        return np.zeros(1, dtype=np.int64), np.zeros(0, dtype=np.int64)
+    return _to_numpy(cells.GetOffsetsArray()), _to_numpy(cells.GetConnectivityArray())
+
+
+def _points(grid) -> np.ndarray:
+    pts = grid.GetPoints()
+    if pts is None:
+        return np.zeros((0, 3))
+    return _to_numpy(pts.GetData()).reshape(-1, 3)
+
+
+def _cell_type_summary(types) -> str:
+    if types.size == 0:
+        return "no cells"
+    values, counts = np.unique(types, return_counts=True)
+    return ", ".join(f"{int(c)} of type {int(v)}" for v, c in zip(values, counts))
+
+
+def _hexahedra(grid, voxel_to_vtk):
+    """The grid's hexahedra as the kernel takes them.
+
+    Returns
+    -------
+    cell_ids : (M,) int64, the cell index in the grid of each hex (hex order = cell order)
+    hexes : (M, 8) int64, point ids in VTK hexahedron order (voxels reordered with ``voxel_to_vtk``)
+    is_voxel : (M,) bool
+    types : (C,) uint8, every cell's type
+    """
+    types = _cell_types(grid)
+    cell_ids = np.flatnonzero((types == VTK_HEXAHEDRON) | (types == VTK_VOXEL)).astype(np.int64)
+    if cell_ids.size == 0:
+        return cell_ids, np.zeros((0, 8), dtype=np.int64), np.zeros(0, dtype=bool), types
+    offsets, conn = _cells(grid)
+    offsets = np.asarray(offsets, dtype=np.int64)
+    sizes = offsets[cell_ids + 1] - offsets[cell_ids]
+    if np.any(sizes != 8):
+        bad = int(cell_ids[np.flatnonzero(sizes != 8)[0]])
+        raise ValueError(f"cell {bad} is a hexahedron/voxel (type {int(types[bad])}) with "
+                         f"{int(offsets[bad + 1] - offsets[bad])} points: expected 8")
+    H = np.asarray(conn, dtype=np.int64)[offsets[cell_ids][:, None] + np.arange(8)]
+    is_voxel = types[cell_ids] == VTK_VOXEL
+    if is_voxel.any():
+        H[is_voxel] = H[is_voxel][:, voxel_to_vtk]
+    return cell_ids, H, is_voxel, types
+
+
+def _vtk_array(name, values):
+    arr = numpy_to_vtk(np.ascontiguousarray(values), deep=1)
+    arr.SetName(name)
+    return arr
+
+
+def _spread(values, cell_ids, n_cells, fill):
+    """Per-hex values (M, ...) as per-cell values (C, ...), ``fill`` on cells that are not hexahedra."""
+    values = np.asarray(values)
+    out = np.full((n_cells,) + values.shape[1:], fill, dtype=values.dtype)
+    out[cell_ids] = values
+    return out
+
+
+def _add_result_cell_arrays(out, result, cell_ids):
+    """Write ``result.cell_data()`` onto ``out``'s cell data, cell ``cell_ids[m]`` getting hex m's values."""
+    n = out.GetNumberOfCells()
+    cd = out.GetCellData()
+    for name, values in result.cell_data().items():
+        values = np.asarray(values)
+        fill = STATUS_NOT_A_HEX if np.issubdtype(values.dtype, np.integer) else np.nan
+        cd.AddArray(_vtk_array(name, _spread(values, cell_ids, n, fill)))
+
+
+def _voxels_as_hexahedra(out, inp, types, voxel_cells, voxel_hexes):
+    """Give ``out`` (a shallow copy of ``inp``) new cells: the voxels as hexahedra (type 12, VTK node order),
+    every other cell as it was. New arrays throughout: the input's cells and types stay untouched."""
+    offsets, conn = _cells(inp)
+    offsets = np.array(offsets, dtype=np.int64)
+    conn = np.array(conn, dtype=np.int64)
+    conn[offsets[voxel_cells][:, None] + np.arange(8)] = voxel_hexes
+    new_types = np.array(types, dtype=np.uint8)
+    new_types[voxel_cells] = VTK_HEXAHEDRON
+    cells = vtkCellArray()
+    cells.SetData(numpy_to_vtkIdTypeArray(offsets, deep=1), numpy_to_vtkIdTypeArray(conn, deep=1))
+    cell_types = numpy_to_vtk(new_types, deep=1, array_type=VTK_UNSIGNED_CHAR)
+    if hasattr(inp, "GetPolyhedronFaces") and inp.GetPolyhedronFaces() is not None:  # VTK >= 9.4
+        out.SetPolyhedralCells(cell_types, cells, inp.GetPolyhedronFaceLocations(), inp.GetPolyhedronFaces())
+    elif hasattr(inp, "GetFaces") and inp.GetFaces() is not None:  # VTK < 9.4
+        out.SetCells(cell_types, cells, inp.GetFaceLocations(), inp.GetFaces())
+    else:
+        out.SetCells(cell_types, cells)
+
+
+def _add_summary(data, name, text):
+    arr = vtkStringArray()
+    arr.SetName(name)
+    arr.InsertNextValue(text)
+    data.GetFieldData().AddArray(arr)
+
+
+def _trilinear(points, hexes, uvw) -> np.ndarray:
+    """x(u, v, w) of each hex: (K, 3) world points for hexes (K, 8) (VTK order) at parameters (K, 3)."""
+    if hexes.shape[0] == 0:
+        return np.zeros((0, 3))
+    from hexsos_plugins.hexahedron import map_points
+
+    return map_points(np.asarray(points, dtype=np.float64)[hexes], uvw)
+
+
+def _argmin_polydata(points, hexes, cell_ids, result) -> vtkPolyData:
+    """Vertices at x(argmin) of every invalid hex, with its ids and values as point data."""
+    bad = np.flatnonzero(result.status == 0)
+    X = _trilinear(points, hexes[bad], result.argmin[bad])
+    poly = vtkPolyData()
+    pts = vtkPoints()
+    pts.SetDataTypeToDouble()
+    pts.SetData(_vtk_array("Points", X.reshape(-1, 3)))
+    poly.SetPoints(pts)
+    verts = vtkCellArray()
+    for i in range(bad.size):
+        verts.InsertNextCell(1)
+        verts.InsertCellPoint(i)
+    poly.SetVerts(verts)
+    pd = poly.GetPointData()
+    pd.AddArray(_vtk_array("hexsos_cell_id", cell_ids[bad].astype(np.int64)))
+    pd.AddArray(_vtk_array("hexsos_hex_id", bad.astype(np.int64)))
+    pd.AddArray(_vtk_array("hexsos_min_det", result.min_det[bad]))
+    pd.AddArray(_vtk_array("hexsos_argmin", result.argmin[bad].reshape(-1, 3)))
+    pd.AddArray(_vtk_array("hexsos_corner_min_det", result.corner_min_det[bad]))
+    pd.AddArray(_vtk_array("hexsos_invalid_inside_only", result.invalid_inside_only[bad].astype(np.int8)))
+    pd.SetActiveScalars("hexsos_min_det")
+    return poly
+
+
+# ----------------------------------------------------------------------------------------------------
+# The filters
+# ----------------------------------------------------------------------------------------------------
+
+_METHODS = ("auto", "sos")
+_RELAXATIONS = ("quad2", "paper")
+
+
+def _doc(text):
+    """A <Documentation> element for a ParaView property (shown as its tooltip)."""
+    from xml.sax.saxutils import escape
+
+    return smdomain.xml(f"<Documentation>{escape(text)}</Documentation>")
+
+
+def _string_list(*values):
+    return smdomain.xml('<StringListDomain name="list">' + "".join(f'<String value="{v}"/>' for v in values)
+                        + "</StringListDomain>")
+
+
+class _HexSOSBase(VTKPythonAlgorithmBase):
+    """Shared machinery: option storage with ``Modified()`` semantics, kernel access, error reporting."""
+
+    def __init__(self, n_outputs):
+        VTKPythonAlgorithmBase.__init__(self, nInputPorts=1, inputType="vtkUnstructuredGrid",
+                                        nOutputPorts=n_outputs, outputType="vtkUnstructuredGrid")
+        self._method = "auto"
+        self._relaxation = "quad2"
+        self._result = None
+
+    # --- options ---------------------------------------------------------------------------------
+    def _set(self, attr, value):
+        if getattr(self, attr) != value:
+            setattr(self, attr, value)
+            self.Modified()
+
+    @staticmethod
+    def _choice(name, value, choices):
+        value = value.decode() if isinstance(value, bytes) else str(value)
+        if value not in choices:
+            raise ValueError(f"{name}: expected one of {list(choices)}, found {value!r}")
+        return value
+
+    def GetMethod(self) -> str:
+        return self._method
+
+    def GetRelaxation(self) -> str:
+        return self._relaxation
+
+    def GetResult(self):
+        """The kernel's result of the last execution (``CheckResult`` / ``RepairResult``), None before or on error."""
+        return self._result
+
+    # --- messages (what vtkErrorMacro / vtkWarningMacro do) ----------------------------------------
+    def _message(self, text, *, error):
+        event = vtkCommand.ErrorEvent if error else vtkCommand.WarningEvent
+        if self.HasObserver(event):
+            self.InvokeEvent(event, text)
+        elif vtkObject.GetGlobalWarningDisplay():
+            kind = "ERROR" if error else "Warning"
+            full = f"{kind}: In {__file__}\n{type(self).__name__} ({hex(id(self))}): {text}\n\n"
+            window = vtkOutputWindow.GetInstance()
+            (window.DisplayErrorText if error else window.DisplayWarningText)(full)
+
+    def _progress(self, done, total):
+        self.UpdateProgress(min(1.0, done / total) if total else 1.0)
+
+    def _prepare(self, grid, submodule):
+        """The kernel and the grid's hexahedra (see :func:`_hexahedra`); raises what ``RequestData`` reports."""
+        kernel = _kernel("hexahedron", submodule)
+        from hexsos_plugins.hexahedron import VOXEL_TO_VTK
+
+        cell_ids, H, is_voxel, types = _hexahedra(grid, VOXEL_TO_VTK)
+        if cell_ids.size == 0:
+            raise kernel.NoHexahedraError(
+                f"the input has no hexahedra (VTK_HEXAHEDRON = 12 or VTK_VOXEL = 11) to check: it has "
+                f"{_cell_type_summary(types)}")
+        return kernel, cell_ids, H, is_voxel, types
+
+    def RequestData(self, request, inInfo, outInfo):
+        self._result = None
+        inp = vtkUnstructuredGrid.GetData(inInfo[0], 0)
+        outputs = [self.GetOutputData(outInfo, i) for i in range(self.GetNumberOfOutputPorts())]
+        try:
+            self._execute(inp, outputs)
+        except Exception as exc:
+            hexsos_error = getattr(sys.modules.get("hexsos_plugins"), "HexsosError", ())
+            if not isinstance(exc, (_KernelUnavailable, ValueError) + ((hexsos_error,) if hexsos_error else ())):
+                raise  # a bug: VTK prints the traceback
+            for out in outputs:
+                out.Initialize()
+            self._message(f"hexsos: {exc}", error=True)
+            return 0
+        return 1
+
+
+class HexSOSCheckFilter(_HexSOSBase):
+    """Certified validity of every hexahedron of a vtkUnstructuredGrid (``hexsos_plugins.check``).
+
+    Input: a vtkUnstructuredGrid. Cells of type VTK_HEXAHEDRON (12) are checked with their nodes in VTK
+    order; VTK_VOXEL (11) cells are reordered to hexahedron order for the kernel (and stay voxels in the
+    output: this filter never changes the input's structure). Every other cell (tets, wedges, pyramids,
+    quads, quadratic hexes, polyhedra, ...) passes through untouched.
+
+    Output port 0: the input grid (structure shallow-copied, every input array kept) with the kernel's cell
+    arrays ``hexsos_min_det``, ``hexsos_lower_bound``, ``hexsos_argmin`` (3 components, u v w),
+    ``hexsos_status`` (int8: 1 valid, 0 invalid, -1 undecided) and ``hexsos_corner_min_det``. Cells that are
+    not hexahedra get NaN in the float arrays and -2 (:data:`STATUS_NOT_A_HEX`) in ``hexsos_status``. Field
+    data ``hexsos_summary`` holds the kernel's summary text.
+
+    Output port 1: a vtkPolyData with one vertex per invalid hex, at x(argmin) in world coordinates (where the
+    hex folds), with point data ``hexsos_cell_id`` (cell index in the input grid), ``hexsos_hex_id`` (index
+    among the hexahedra, in cell order), ``hexsos_min_det``, ``hexsos_argmin``, ``hexsos_corner_min_det`` and
+    ``hexsos_invalid_inside_only`` (1: valid at all 8 corners, invalid inside: what corner checks miss).
+
+    Options: ``SetMethod("auto" | "sos")`` and ``SetRelaxation("quad2" | "paper")``, passed to the kernel.
+
+    Errors found while executing (a grid without hexahedra, a hexahedron without 8 points, non-finite
+    coordinates, an option the kernel refuses, the kernel or a dependency missing from ParaView's Python) are
+    reported the way ``vtkErrorMacro`` reports them: an ErrorEvent on this filter if someone observes it, else
+    the VTK output window (ParaView's Output Messages). The request then fails (``RequestData`` returns 0, so
+    ``Update()`` returns False and VTK adds its "returned failure for request" line) and the outputs are empty;
+    nothing is raised to the caller. A setter given a value outside its choices raises ``ValueError`` at once.
+    """
+
+    def __init__(self):
+        _HexSOSBase.__init__(self, 2)
+
+    def FillOutputPortInformation(self, port, info):
+        info.Set(vtkDataObject.DATA_TYPE_NAME(), "vtkUnstructuredGrid" if port == 0 else "vtkPolyData")
+        return 1
+
+    @smproperty.stringvector(name="Method", default_values="auto", number_of_elements=1)
+    @_string_list(*_METHODS)
+    @_doc("auto: Bernstein bounds and branch-and-bound, the SOS relaxation only where needed (fast, exact). "
+          "sos: the SOS relaxation on every hex, as the paper (slow). Verdicts are proven either way.")
+    def SetMethod(self, value):
+        self._set("_method", self._choice("method", value, _METHODS))
+
+    @smproperty.stringvector(name="Relaxation", default_values="quad2", number_of_elements=1)
+    @_string_list(*_RELAXATIONS)
+    @_doc("The SOS relaxation: quad2 (order 2 with quadratic box constraints, fast) or paper (the paper's).")
+    def SetRelaxation(self, value):
+        self._set("_relaxation", self._choice("relaxation", value, _RELAXATIONS))
+
+    def _execute(self, inp, outputs):
+        out, poly_out = outputs
+        kernel, cell_ids, H, _, _ = self._prepare(inp, "certify")
+        P = _points(inp)
+        self.UpdateProgress(0.0)
+        result = kernel.check(P, H, method=self._method, relaxation=self._relaxation, progress=self._progress)
+        out.ShallowCopy(inp)
+        _add_result_cell_arrays(out, result, cell_ids)
+        _add_summary(out, "hexsos_summary", result.summary())
+
+        poly_out.ShallowCopy(_argmin_polydata(P, H, cell_ids, result))
+        self._result = result
+        self.UpdateProgress(1.0)
+
+
+class HexSOSRepairFilter(_HexSOSBase):
+    """Repair the hexahedra of a vtkUnstructuredGrid with a certificate (``hexsos_plugins.repair``).
+
+    Input: as :class:`HexSOSCheckFilter`. Output: the grid with repaired point coordinates (float64, so the
+    certificate survives: rounding to float32 could undo a margin), every input array kept, plus
+
+    * point data ``hexsos_displacement`` (3 components): new minus old coordinates (zero on points no hex
+      moved);
+    * the kernel's cell arrays after repair (``hexsos_min_det``, ``hexsos_status``, ...; NaN / -2 on cells
+      that are not hexahedra), the certificate of the repaired mesh;
+    * field data ``hexsos_repair_success`` (1 / 0) and ``hexsos_summary`` (the repair's summary text).
+
+    Voxels are written as hexahedra (type 12, nodes reordered): once their points move they are no longer
+    axis-aligned boxes, which is what VTK_VOXEL means to VTK (its interpolation, contouring and rendering
+    assume it). Cell order and count are unchanged, so cell arrays still line up. Non-hex cells keep their
+    type and connectivity; points they share with hexahedra move with the hexahedra unless
+    ``SetPinNonHexPoints(True)``.
+
+    Options: ``SetRho`` (200), ``SetMargin`` (relative margin > 0; None: the kernel's default 1e-3),
+    ``SetPinBoundary`` (keep the boundary of the hex mesh fixed), ``SetMaxIterations`` (100),
+    ``SetPinNonHexPoints`` (keep points of non-hex cells fixed), ``SetMethod``, ``SetRelaxation``.
+    A repair that does not prove every hex valid still outputs the best mesh found, with a VTK warning.
+    Errors are reported as by :class:`HexSOSCheckFilter`. ``AbortExecuteOn()`` stops between iterations.
+    """
+
+    def __init__(self):
+        _HexSOSBase.__init__(self, 1)
+        self._rho = 200.0
+        self._margin = None
+        self._pin_boundary = False
+        self._max_iterations = 100
+        self._pin_non_hex = False
+
+    @smproperty.stringvector(name="Method", default_values="auto", number_of_elements=1)
+    @_string_list(*_METHODS)
+    @_doc("How the argmin of each hex not proven valid is found: auto (exact, fast) or sos (the paper's).")
+    def SetMethod(self, value):
+        self._set("_method", self._choice("method", value, _METHODS))
+
+    @smproperty.stringvector(name="Relaxation", default_values="quad2", number_of_elements=1)
+    @_string_list(*_RELAXATIONS)
+    @_doc("The SOS relaxation: quad2 or paper.")
+    def SetRelaxation(self, value):
+        self._set("_relaxation", self._choice("relaxation", value, _RELAXATIONS))
+
+    @smproperty.doublevector(name="Rho", default_values=200.0, number_of_elements=1)
+    @smdomain.doublerange(min=0.0)
+    @_doc("Weight of the repaired hexes against the original positions (the paper's rho). Larger: faster, "
+          "farther from the input.")
+    def SetRho(self, value):
+        self._set("_rho", float(value))
+
+    def GetRho(self) -> float:
+        return self._rho
+
+    @smproperty.doublevector(name="Margin", default_values=1e-3, number_of_elements=1)
+    @smdomain.doublerange(min=0.0)
+    @_doc("Relative margin > 0: each repaired hex is pushed to det J >= margin * h^3 at its worst point "
+          "(h: mean edge length). The kernel's default is 1e-3.")
+    def SetMargin(self, value):
+        self._set("_margin", None if value is None else float(value))
+
+    def GetMargin(self):
+        return self._margin
+
+    @smproperty.intvector(name="PinBoundary", label="Pin Boundary", default_values=0, number_of_elements=1)
+    @smdomain.xml('<BooleanDomain name="bool"/>')
+    @_doc("Keep the vertices on the boundary of the hex mesh fixed.")
+    def SetPinBoundary(self, value):
+        self._set("_pin_boundary", bool(value))
+
+    def GetPinBoundary(self) -> bool:
+        return self._pin_boundary
+
+    @smproperty.intvector(name="MaxIterations", label="Max Iterations", default_values=100, number_of_elements=1)
+    @smdomain.intrange(min=0, max=1000)
+    @_doc("Most outer iterations of the repair; the best mesh seen is returned if not every hex is valid.")
+    def SetMaxIterations(self, value):
+        self._set("_max_iterations", int(value))
+
+    def GetMaxIterations(self) -> int:
+        return self._max_iterations
+
+    @smproperty.intvector(name="PinNonHexPoints", label="Pin Non-Hex Points", default_values=0,
+                          number_of_elements=1)
+    @smdomain.xml('<BooleanDomain name="bool"/>')
+    @_doc("Keep fixed the points that belong to cells other than hexahedra (tets, wedges, quads, ...).")
+    def SetPinNonHexPoints(self, value):
+        self._set("_pin_non_hex", bool(value))
+
+    def GetPinNonHexPoints(self) -> bool:
+        return self._pin_non_hex
+
+    def _abort(self, entry, points):
+        return bool(self.GetAbortExecute())
+
+    def _execute(self, inp, outputs):
+        (out,) = outputs
+        _, cell_ids, H, is_voxel, types = self._prepare(inp, "meshrepair")
+        from hexsos_plugins import repair
+
+        P = _points(inp)
+        pinned = None
+        if self._pin_non_hex:
+            other = np.flatnonzero((types != VTK_HEXAHEDRON) & (types != VTK_VOXEL))
+            if other.size:
+                offsets, conn = _cells(inp)
+                offsets = np.asarray(offsets, dtype=np.int64)
+                pinned = np.zeros(P.shape[0], dtype=bool)
+                starts, stops = offsets[other], offsets[other + 1]
+                idx = np.concatenate([np.arange(a, b) for a, b in zip(starts, stops)])
+                pinned[np.asarray(conn, dtype=np.int64)[idx]] = True
+        self.UpdateProgress(0.0)
+        result = repair(P, H, rho=self._rho, margin=self._margin, pin_boundary=self._pin_boundary,
+                        max_iter=self._max_iterations, method=self._method, relaxation=self._relaxation,
+                        progress=self._progress, callback=self._abort, pinned=pinned)
+        out.ShallowCopy(inp)
+        if is_voxel.any():
+            _voxels_as_hexahedra(out, inp, types, cell_ids[is_voxel], H[is_voxel])
+        pts = vtkPoints()
+        pts.SetDataTypeToDouble()
+        pts.SetData(_vtk_array("Points", np.asarray(result.points, dtype=np.float64)))
+        out.SetPoints(pts)
+        out.GetPointData().AddArray(_vtk_array("hexsos_displacement", result.displacement))
+        _add_result_cell_arrays(out, result.check, cell_ids)
+        flag = vtkDataArray.CreateDataArray(6)  # VTK_INT
+        flag.SetName("hexsos_repair_success")
+        flag.InsertNextTuple1(1 if result.success else 0)
+        out.GetFieldData().AddArray(flag)
+        _add_summary(out, "hexsos_summary", result.summary())
+        self._result = result
+        self.UpdateProgress(1.0)
+        if not result.success:
+            self._message(f"hexsos: not every hex proven valid after repair: {result.message}", error=False)
+
+
+# ----------------------------------------------------------------------------------------------------
+# ParaView registration (no-ops without ParaView). The class decorators are applied as calls and their
+# results dropped: ParaView's class decorators return a wrapper *function*, and the filters stay classes.
+# ----------------------------------------------------------------------------------------------------
+
+
+def _register(cls, name, label, help_text, output_ports):
+    wrapped = smdomain.datatype(dataTypes=["vtkUnstructuredGrid"], composite_data_supported=False)(cls)
+    wrapped = smproperty.input(name="Input", port_index=0)(wrapped)
+    ports = "".join(f'<OutputPort name="{n}" index="{i}"/>' for i, n in enumerate(output_ports))
+    wrapped = smproperty.xml(ports + f"<Documentation short_help=\"{help_text}\">{help_text}</Documentation>")(wrapped)
+    wrapped = smhint.xml('<ShowInMenu category="Mesh Quality"/>')(wrapped)
+    smproxy.filter(name=name, label=label, support_reload=False)(wrapped)
+
+
+_register(HexSOSCheckFilter, "HexSOSCheck", "HexSOS Check",
+          "Certified validity of every hexahedron: exact min det J, where it occurs, a proven verdict.",
+          ["Checked Mesh", "Fold Points"])
+_register(HexSOSRepairFilter, "HexSOSRepair", "HexSOS Repair",
+          "Move the vertices as little as possible until every hexahedron is proven valid.",
+          ["Repaired Mesh"])
+
+
+# ----------------------------------------------------------------------------------------------------
+# python -m vtk_filter.hexsos_paraview_plugin [--record]: how to point ParaView at this installation
+# ----------------------------------------------------------------------------------------------------
+
+
+def _installation_paths() -> list:
+    """site-packages of this Python and the directory holding hexsos_plugins (for an editable install)."""
+    import site
+    import sysconfig
+
+    paths = []
+    try:
+        import hexsos_plugins
+
+        paths.append(os.path.dirname(os.path.dirname(os.path.abspath(hexsos_plugins.__file__))))
+    except ImportError:
+        pass
+    paths += [sysconfig.get_paths()["purelib"], sysconfig.get_paths()["platlib"]]
+    try:
+        paths += site.getsitepackages()
+    except AttributeError:  # pragma: no cover - old virtualenv
+        pass
+    seen, out = set(), []
+    for p in paths:
+        if p not in seen and os.path.isdir(p):
+            seen.add(p)
+            out.append(p)
+    return out
+
+
+def main(argv=None) -> int:
+    import argparse
+
+    parser = argparse.ArgumentParser(
+        prog="python -m vtk_filter.hexsos_paraview_plugin",
+        description="Print how to load the hexsos ParaView plugin with this Python's packages, or record them.")
+    parser.add_argument("--record", action="store_true",
+                        help=f"write this Python's package directories to {_record_file()} (read by the plugin)")
+    args = parser.parse_args(argv)
+    paths = _installation_paths()
+    version = f"{sys.version_info[0]}.{sys.version_info[1]}"
+    if args.record:
+        target = _record_file()
+        os.makedirs(os.path.dirname(target), exist_ok=True)
+        with open(target, "w", encoding="utf-8") as fh:
+            fh.write(f"# written by {sys.executable} (Python {version}); one directory per line, appended to "
+                     f"ParaView's sys.path by the hexsos plugin\n")
+            fh.write("".join(p + "\n" for p in paths))
+        print(f"recorded {len(paths)} directories in {target}")
+        return 0
+    print(f"# hexsos ParaView plugin, packages of {sys.executable} (Python {version});")
+    print(f"# ParaView's Python must be {version} too (compiled dependencies such as clarabel)")
+    print(f"export PV_PLUGIN_PATH={_HERE}")
+    print(f"export HEXSOS_PYTHONPATH={os.pathsep.join(paths)}")
+    print("# Debian's ParaView 5.11 with Python >= 3.11 only:")
+    print(f"export PYTHONPATH={os.path.join(_HERE, 'paraview_compat')}${{PYTHONPATH:+:$PYTHONPATH}}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
