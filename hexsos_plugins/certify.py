@@ -259,7 +259,7 @@ def validate_arrays(points, hexes):
 def check(points, hexes, *, method: str = "auto", relaxation: str = "quad2", rtol: float = 1e-9,
           flat_rtol: float = 1e-12, max_depth: int = 30, max_boxes: int = 64, sos_tol: float = 1e-8,
           sos_max_iter: int = 100, progress=None, chunk_size: int = _CHUNK, jobs: int = 1, scheduler=None,
-          block_size: int | None = None) -> CheckResult:
+          block_size: int | None = None, executor=None) -> CheckResult:
     """Certified validity of every hex: exact min det J, where it occurs, and a proven verdict.
 
     Parameters
@@ -295,6 +295,9 @@ def check(points, hexes, *, method: str = "auto", relaxation: str = "quad2", rto
     block_size : int, optional
         Hexes per task with ``jobs > 1`` or a scheduler (default: about four tasks per worker, at most
         65536 hexes each). Each task carries only its hexes' vertex coordinates.
+    executor : optional
+        An open executor of :func:`hexsos_plugins.parallel.executor` to use instead of ``jobs`` and
+        ``scheduler`` (callers that check many times, like the repair, reuse one pool or cluster connection).
 
     Returns
     -------
@@ -321,10 +324,12 @@ def check(points, hexes, *, method: str = "auto", relaxation: str = "quad2", rto
     opts = _Options(method, relaxation, rtol, flat_rtol, max_depth, max_boxes, sos_tol, sos_max_iter,
                     max(1, int(chunk_size)))
     PT = np.ascontiguousarray(P.T)
-    from .parallel import executor
+    from contextlib import nullcontext
+
+    from .parallel import executor as make_executor
 
     result = CheckResult.empty(M, method_requested=method, relaxation=relaxation)
-    with executor(jobs, scheduler) as ex:
+    with (nullcontext(executor) if executor is not None else make_executor(jobs, scheduler)) as ex:
         # in this process: chunk by chunk; elsewhere: blocks of about four per worker, each carrying only
         # its hexes' vertex coordinates (gathered lazily, a bounded number in flight)
         size = opts.chunk if ex.workers == 1 else (block_size or max(opts.chunk, min(65536, -(-M // (4 * ex.workers)))))

@@ -52,6 +52,10 @@ def add_parser(subparsers):
     p.add_argument("--method", choices=("auto", "sos"), default="auto",
                    help="how the kernel finds u* in the iterations: auto (default) or sos (the moment relaxation "
                         "on every hex checked, as the paper; slow). The final certificate always uses auto")
+    p.add_argument("--jobs", type=int, default=1, metavar="N",
+                   help="worker processes for the per-hex repair steps and the checks (0: one per core; default 1)")
+    p.add_argument("--scheduler", metavar="ADDRESS",
+                   help="run them on a Dask cluster, e.g. tcp://host:8786 (needs the 'dask' extra)")
     p.add_argument("--progress", dest="progress", action="store_true", default=None,
                    help="show a progress bar on stderr even when it is not a terminal")
     p.add_argument("--no-progress", dest="progress", action="store_false", help="never show a progress bar")
@@ -69,7 +73,6 @@ def _same_file(a, b) -> bool:
 def run(args) -> int:
     """The handler of ``hexsos repair``; returns the exit code."""
     from .cli import Progress, _read_mesh
-    from .io import read, write
     from .meshrepair import repair
 
     if _same_file(args.mesh, args.output):
@@ -78,8 +81,83 @@ def run(args) -> int:
         raise MeshWriteError(f"{args.plot}: is the input file; give another PNG path")
     mesh, orient = _read_mesh(args.mesh, args.fix_orientation)
     bar = Progress("repairing", enabled=args.progress)
-    result = repair(mesh.points, mesh.hexes, rho=args.rho, margin=args.margin, pin_boundary=args.pin_boundary,
-                    max_iter=args.max_iter, method=args.method, progress=bar)
+    best = _Best()
+    try:
+        with _sigterm_as_interrupt():
+            result = repair(mesh.points, mesh.hexes, rho=args.rho, margin=args.margin,
+                            pin_boundary=args.pin_boundary, max_iter=args.max_iter, method=args.method,
+                            progress=bar, jobs=args.jobs, scheduler=args.scheduler, callback=best)
+            return _finish(args, mesh, orient, result, bar)
+    except KeyboardInterrupt:
+        bar.close()
+        return _interrupted(args, mesh, best)
+
+
+class _Best:
+    """The repair's callback: keeps a copy of the best mesh seen so far (fewest hexes not proven valid, then
+    the largest min det J), for the checkpoint written if the repair is interrupted."""
+
+    def __init__(self):
+        self.key, self.points, self.entry = None, None, None
+
+    def __call__(self, entry, points):
+        key = (-(entry["invalid"] + entry.get("undecided", 0)), entry["min_det"])
+        if self.key is None or key > self.key:
+            self.key, self.points, self.entry = key, np.array(points), dict(entry)
+        return False
+
+
+class _sigterm_as_interrupt:
+    """SIGTERM raises KeyboardInterrupt (like Ctrl-C) inside the block, so both leave through the same path."""
+
+    def __enter__(self):
+        import signal
+        import threading
+
+        self._old = None
+        if threading.current_thread() is threading.main_thread():
+            def handler(signum, frame):
+                raise KeyboardInterrupt("SIGTERM")
+
+            self._old = signal.signal(signal.SIGTERM, handler)
+        return self
+
+    def __exit__(self, *exc):
+        import signal
+
+        if self._old is not None:
+            signal.signal(signal.SIGTERM, self._old)
+        return False
+
+
+def checkpoint_path(output: str) -> str:
+    """Where an interrupted repair saves the best mesh so far: OUT with '.checkpoint' before its extension."""
+    base, ext = os.path.splitext(output)
+    return f"{base}.checkpoint{ext or '.vtu'}"
+
+
+def _interrupted(args, mesh, best) -> int:
+    """Ctrl-C or SIGTERM: OUT is not written (nor left half-written); the best mesh so far goes to a checkpoint."""
+    from .io import write
+
+    if best.points is None:
+        sys.stderr.write(f"hexsos: interrupted before the first repair iteration finished; {args.output} was not "
+                         "written and nothing was changed\n")
+        return 130
+    path = checkpoint_path(args.output)
+    write(mesh.with_points(best.points).to_meshio(point_data={"hexsos_displacement": best.points - mesh.points}),
+          path)
+    e = best.entry
+    sys.stderr.write(f"hexsos: interrupted; {args.output} was not written. The best mesh so far (outer iteration "
+                     f"{e['iteration']}: {e['invalid'] + e.get('undecided', 0)} hexes not proven valid) is saved in "
+                     f"{path}; resume with: hexsos repair {path} -o {args.output}\n")
+    return 130
+
+
+def _finish(args, mesh, orient, result, bar) -> int:
+    """Everything after the repair: fidelity, writing OUT, the certificate of the file, the report."""
+    from .io import read, write
+
     bar.close()
 
     fidelity, fidelity_note = None, None

@@ -401,6 +401,34 @@ def _check_kw(method, relaxation, rtol=1e-9):
     return {"method": method, "relaxation": relaxation, "rtol": rtol}
 
 
+#: Fewest hexes per worker before Algorithm 1 is spread over an executor's workers (below, shipping the
+#: hexes costs more than repairing them here).
+_PARALLEL_MIN = 64
+_PER_HEX = ("valid", "status", "min_det", "argmin", "margin", "steps", "sos_steps", "stuck")
+_SUMMED = ("projection_steps", "sos_steps_total", "sdp_solves", "infeasible_projections")
+
+
+def _pi_task(task):
+    """Algorithm 1 on one block of hexes (run wherever the executor puts it)."""
+    X, free, margin, max_steps, check_kw, first, size, strict = task
+    return _pi(X, free, margin, max_steps, check_kw, first=first, size=size, strict=strict)
+
+
+def _pi_parallel(ex, X, free, margin, max_steps, check_kw, *, first, size, strict):
+    """:func:`_pi` on the executor's workers in blocks of hexes (each task carries only its hexes)."""
+    K = X.shape[0]
+    if ex.workers == 1 or K < _PARALLEL_MIN * ex.workers:
+        return _pi(X, free, margin, max_steps, check_kw, first=first, size=size, strict=strict)
+    blocks = np.array_split(np.arange(K), min(4 * ex.workers, K // _PARALLEL_MIN))
+    tasks = [(X[b], free[b], margin[b], max_steps, check_kw, tuple(a[b] for a in first), size[b], strict[b])
+             for b in blocks]
+    parts = ex.map(_pi_task, tasks)
+    Z = np.concatenate([z for z, _ in parts])
+    info = {k: np.concatenate([i[k] for _, i in parts]) for k in _PER_HEX}
+    info.update({k: sum(i[k] for _, i in parts) for k in _SUMMED})
+    return Z, info
+
+
 def repair_hex(X, *, margin=None, max_steps: int = 50, pinned=None, method: str = "auto",
                relaxation: str = "quad2"):
     """Algorithm 1 of the paper on one hex or many at once (independently).
@@ -519,7 +547,8 @@ class RepairResult:
 
 def repair(points, hexes, *, rho: float = DEFAULT_RHO, margin=None, pin_boundary: bool = False,
            max_iter: int = 100, method: str = "auto", relaxation: str = "quad2", progress=None,
-           callback=None, anchor: str = "current", max_steps: int = 50, pinned=None) -> RepairResult:
+           callback=None, anchor: str = "current", max_steps: int = 50, pinned=None, jobs: int = 1,
+           scheduler=None) -> RepairResult:
     """Repair a hex mesh: move its vertices as little as possible until every hex is proven valid.
 
     Parameters
@@ -543,12 +572,17 @@ def repair(points, hexes, *, rho: float = DEFAULT_RHO, margin=None, pin_boundary
     callback : callable(entry, points), optional
         After each outer iteration with its history entry and the current coordinates (do not modify them);
         returning True stops the repair.
-    anchor : {"initial", "current"}, keyword-only
-        A in the vertex update: the input V^0 (default, the paper's formula) or the current V.
+    anchor : {"current", "initial"}, keyword-only
+        A in the vertex update: the current V (default; see the module docstring) or the input V^0 (the
+        paper's formula).
     max_steps : int, keyword-only
         Most projections per hex in each call of Algorithm 1. Default 50.
     pinned : array_like of bool (N,), optional, keyword-only
         Further vertices to keep fixed (besides the boundary with ``pin_boundary``).
+    jobs, scheduler : keyword-only
+        Run the per-hex repair steps (Algorithm 1) and the checks on ``jobs`` processes or a Dask cluster
+        (a ``dask.distributed.Client`` or a scheduler address), as :func:`hexsos_plugins.check` does. Each
+        task carries only its hexes' coordinates; iterations with few hexes to repair stay in this process.
 
     Returns
     -------
@@ -573,6 +607,16 @@ def repair(points, hexes, *, rho: float = DEFAULT_RHO, margin=None, pin_boundary
     >>> r.success, r.stats["invalid_before"], r.stats["invalid_after"]
     (True, 1, 0)
     """
+    from .parallel import executor
+
+    with executor(jobs, scheduler) as ex:
+        return _repair(points, hexes, rho=rho, margin=margin, pin_boundary=pin_boundary, max_iter=max_iter,
+                       method=method, relaxation=relaxation, progress=progress, callback=callback, anchor=anchor,
+                       max_steps=max_steps, pinned=pinned, ex=ex)
+
+
+def _repair(points, hexes, *, rho, margin, pin_boundary, max_iter, method, relaxation, progress, callback, anchor,
+            max_steps, pinned, ex) -> RepairResult:
     t0 = time.perf_counter()
     P0, H = validate_arrays(points, hexes)
     P0 = np.array(P0, dtype=np.float64, copy=True)  # never alias the caller's array
@@ -604,7 +648,7 @@ def repair(points, hexes, *, rho: float = DEFAULT_RHO, margin=None, pin_boundary
     free_h = ~pin[H]  # (M, 8)
 
     V = P0.copy()
-    r0 = check(V, H, **ckw)
+    r0 = check(V, H, executor=ex, **ckw)
     status, min_det, argmin = r0.status.copy(), r0.min_det.copy(), r0.argmin.copy()
     sos_steps, r_steps, sdp = M, 0, int(r0.sos_solves)
     bad0 = int((status != 1).sum())
@@ -647,8 +691,8 @@ def repair(points, hexes, *, rho: float = DEFAULT_RHO, margin=None, pin_boundary
         ti = time.perf_counter()
         X = V[H[work]]
         mw = np.minimum(c * _GROWTH ** np.minimum(stubborn[work], 60), max(c, _MAX_MARGIN))
-        Z, info = _pi(X, free_h[work], mw, max_steps, ckw, first=(status[work], min_det[work], argmin[work]),
-                      size=size0[work], strict=weak[work])
+        Z, info = _pi_parallel(ex, X, free_h[work], mw, max_steps, ckw,
+                               first=(status[work], min_det[work], argmin[work]), size=size0[work], strict=weak[work])
         stubborn[work] += 1
         sos_steps += info["sos_steps_total"]
         r_steps += info["projection_steps"]
@@ -669,7 +713,7 @@ def repair(points, hexes, *, rho: float = DEFAULT_RHO, margin=None, pin_boundary
         V = Vn
         recheck = np.flatnonzero(moved[H].any(axis=1))
         if recheck.size:
-            rr = check(V, H[recheck], **ckw)
+            rr = check(V, H[recheck], executor=ex, **ckw)
             status[recheck], min_det[recheck], argmin[recheck] = rr.status, rr.min_det, rr.argmin
             stubborn[recheck[rr.status == 1]] = _RESET * stubborn[recheck[rr.status == 1]]
             sos_steps += int(recheck.size)
@@ -699,7 +743,7 @@ def repair(points, hexes, *, rho: float = DEFAULT_RHO, margin=None, pin_boundary
     # the best mesh seen, then the certificate on all of it with check's defaults
     if best[2] != it:
         V = best[1]
-    final = check(V, H, relaxation=relaxation)
+    final = check(V, H, relaxation=relaxation, executor=ex)
     success = bool((final.status == 1).all())
     fbad = final.status != 1
     if not success:

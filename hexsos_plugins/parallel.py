@@ -105,7 +105,10 @@ class DaskExecutor(SerialExecutor):
         limit = 4 * self.workers
         try:
             for i, item in enumerate(items):
-                fut = self.client.submit(fn, item, *args, pure=False)
+                # send the block's data to a worker first (a task that embeds megabytes of data makes Dask
+                # warn about a large graph and route the data through the scheduler)
+                data = self.client.scatter(item, hash=False)
+                fut = self.client.submit(fn, data, *args, pure=False)
                 pending[fut.key] = (i, fut)
                 queue.add(fut)
                 while queue.count() >= limit:

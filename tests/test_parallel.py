@@ -58,3 +58,22 @@ def test_cli_jobs(tmp_path, capsys):
     assert cli.main(["check", str(path), "--jobs", "2", "--json"]) == 1
     out = capsys.readouterr().out
     assert '"hexes": 3000' in out
+
+
+def test_repair_on_processes_and_dask_matches_the_serial_repair():
+    distributed = pytest.importorskip("dask.distributed")
+    from comparison.bench_repair import perturbed_ring
+    from hexsos_plugins import meshrepair
+
+    P, H = perturbed_ring(12)  # 174 invalid hexes: the first iterations are spread over the workers
+    ref = hs.repair(P, H)
+    assert ref.success and ref.stats["invalid_before"] >= 2 * meshrepair._PARALLEL_MIN
+    two = hs.repair(P, H, jobs=2)
+    assert two.success and two.stats["outer_iterations"] == ref.stats["outer_iterations"]
+    assert np.allclose(two.points, ref.points, rtol=0, atol=1e-9)
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as lc:
+        with distributed.Client(lc) as client:
+            with distributed.get_task_stream(client) as stream:
+                d = hs.repair(P, H, scheduler=client)
+            assert d.success and np.allclose(d.points, ref.points, rtol=0, atol=1e-9)
+            assert any("_pi_task" in t["key"] for t in stream.data)  # Algorithm 1 ran on the workers

@@ -365,3 +365,47 @@ def test_docstring_examples_run():
 
     failures, tried = doctest.testmod(rp, verbose=False)
     assert tried >= 2 and failures == 0
+
+
+# ------------------------------------------------------------------------------------------ interruption
+
+
+@pytest.mark.parametrize("sig", ["SIGTERM", "SIGINT"])
+def test_interrupted_repair_leaves_no_output_and_saves_a_checkpoint(tmp_path, sig):
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    import meshio
+
+    from hexsos_plugins.cli_repair import checkpoint_path
+
+    P, H = structured_grid(2)
+    P = P.copy()
+    P[0] = [0.8, 0.8, 0.8]  # the tangle above: the repair keeps going until max-iter
+    src = tmp_path / "tangle.vtu"
+    meshio.write(src, meshio.Mesh(P, [("hexahedron", H)], point_data={"t": np.arange(len(P), dtype=float)}))
+    before = src.read_bytes()
+    out = tmp_path / "out.vtu"
+    proc = subprocess.Popen([sys.executable, "-m", "hexsos_plugins", "repair", str(src), "-o", str(out),
+                             "--max-iter", "1000000", "--no-fidelity"], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    time.sleep(4.0)  # well into the iterations (each takes milliseconds)
+    assert proc.poll() is None
+    proc.send_signal(getattr(signal, sig))
+    stdout, stderr = proc.communicate(timeout=60)
+    assert proc.returncode == 130, stderr
+    assert "Traceback" not in stderr and not out.exists()  # no OUT, not even half of one
+    assert not list(tmp_path.glob(".out*"))  # no temporary file left behind
+    ckpt = checkpoint_path(str(out))
+    assert f"saved in {ckpt}" in stderr and "resume with: hexsos repair" in stderr
+    m = meshio.read(ckpt)
+    assert np.array_equal(m.cells_dict["hexahedron"], H) and "t" in m.point_data
+    moved = m.points - P
+    assert np.allclose(m.point_data["hexsos_displacement"], moved) and np.abs(moved).max() > 0
+    assert src.read_bytes() == before
+    # resuming from the checkpoint works like any repair
+    r = subprocess.run([sys.executable, "-m", "hexsos_plugins", "repair", ckpt, "-o", str(out), "--max-iter", "2",
+                        "--no-fidelity", "--json"], capture_output=True, text=True, timeout=120)
+    assert r.returncode in (0, 1) and out.exists()
