@@ -59,25 +59,34 @@ def stages(points, hexes):
     """Seconds per stage of the auto pipeline (one run), for the 'where the time goes' line."""
     from hexsos_plugins import bernstein as bn
     from hexsos_plugins import hexahedron as hx
+    from hexsos_plugins.certify import _CHUNK
 
-    out = {}
-    t = time.perf_counter()
-    X = hx.gather(points, hexes)
-    out["gather"] = time.perf_counter() - t
-    t = time.perf_counter()
-    B, err = hx.det_bernstein(X, layout="soa")
-    out["bernstein coefficients"] = time.perf_counter() - t
-    t = time.perf_counter()
-    br = bn.bracket(B, err)
-    out["branch-and-bound"] = time.perf_counter() - t
-    idx = np.flatnonzero(br.depth > 0)
-    t = time.perf_counter()
-    bn.polish(B[:, idx], br.argmin[idx])
-    out["polish"] = time.perf_counter() - t
-    t = time.perf_counter()
-    hx.det_at(X, br.argmin, layout="soa")
-    out["witness values"] = time.perf_counter() - t
-    return out, idx.size, br.boxes
+    out = dict.fromkeys(("gather", "bernstein coefficients", "branch-and-bound", "polish", "witness values"), 0.0)
+    nref = boxes = 0
+    PT = np.ascontiguousarray(np.asarray(points, float).T)
+    for s in range(0, len(hexes), _CHUNK):  # as check does: chunk by chunk
+        t = time.perf_counter()
+        X = hx.gather_t(PT, hexes[s : s + _CHUNK])
+        out["gather"] += time.perf_counter() - t
+        t = time.perf_counter()
+        st = {}
+        B, err = hx.det_bernstein(X, layout="soa", stats=st)
+        out["bernstein coefficients"] += time.perf_counter() - t
+        t = time.perf_counter()
+        br = bn.bracket(B, err, stats=st)
+        out["branch-and-bound"] += time.perf_counter() - t
+        idx = np.flatnonzero(br.depth > 0)
+        t = time.perf_counter()
+        if idx.size:
+            x, _ = bn.polish(B[:, idx], br.argmin[idx])
+        out["polish"] += time.perf_counter() - t
+        t = time.perf_counter()
+        if idx.size:
+            hx.det_at(X[:, :, idx], x, layout="soa")
+        out["witness values"] += time.perf_counter() - t
+        nref += idx.size
+        boxes += br.boxes
+    return out, nref, boxes
 
 
 def compare(label, points, hexes, repeat):

@@ -67,7 +67,7 @@ class Bracket:
     boxes: int  # boxes examined in all
 
 
-def bracket(B, err, *, rtol: float = 1e-9, max_depth: int = 30, max_boxes: int = 64) -> Bracket:
+def bracket(B, err, *, rtol: float = 1e-9, max_depth: int = 30, max_boxes: int = 64, stats=None) -> Bracket:
     """Certified bracket of min det J over [0, 1]^3 for each hex, by vectorized branch-and-bound.
 
     Parameters
@@ -82,6 +82,8 @@ def bracket(B, err, *, rtol: float = 1e-9, max_depth: int = 30, max_boxes: int =
         Deepest subdivision level (box side ``2**-max_depth``). Default 30.
     max_boxes : int, keyword-only
         Most boxes kept per hex and level; the rest are folded into the lower bound. Default 64.
+    stats : dict, optional
+        The summaries :func:`~hexsos_plugins.hexahedron.det_bernstein` fills in (saves recomputing them).
 
     Returns
     -------
@@ -90,14 +92,16 @@ def bracket(B, err, *, rtol: float = 1e-9, max_depth: int = 30, max_boxes: int =
     B = np.asarray(B, dtype=np.float64)
     err = np.asarray(err, dtype=np.float64)
     M = B.shape[1]
-    scale = np.abs(B).max(axis=0)
+    if stats is None:
+        corners = B[CORNER_COEFFS]  # (8, M)
+        k = corners.argmin(axis=0)
+        stats = {"max_abs": np.abs(B).max(axis=0), "min": B.min(axis=0), "corner_arg": k,
+                 "corner_min": corners[k, np.arange(M)]}
+    scale = stats["max_abs"]
     tol = np.maximum(rtol * scale, 4.0 * err)
-
-    corners = B[CORNER_COEFFS]  # (8, M)
-    k = corners.argmin(axis=0)
-    upper = corners[k, np.arange(M)]
-    argmin = _CORNER_UVW[k].copy()
-    lower = B.min(axis=0) - err
+    upper = stats["corner_min"].copy()
+    argmin = _CORNER_UVW[stats["corner_arg"]]
+    lower = stats["min"] - err
     depth = np.zeros(M, dtype=np.int64)
     open_ = np.flatnonzero(lower < upper - tol)
     boxes = 0
@@ -135,14 +139,14 @@ def _refine(B, err, scale, tol, upper, argmin, max_depth, max_boxes):
         lo = np.minimum(cmin, Ck[:, 8:].min(axis=1))
         lo -= err[hid] + d * level_err[hid]
 
-        starts = np.flatnonzero(np.r_[True, hid[1:] != hid[:-1]])
+        starts = np.flatnonzero(np.concatenate(([True], hid[1:] != hid[:-1])))
         uh = hid[starts]
         depth[uh] = d
         pbest = cmin.min(axis=0)  # (K,) per parent
         seg = np.minimum.reduceat(pbest, starts)
         better = seg < upper[uh]
         if better.any():
-            seg_of = np.repeat(np.arange(starts.size), np.diff(np.r_[starts, K]))
+            seg_of = np.repeat(np.arange(starts.size), np.diff(np.append(starts, K)))
             hit = np.flatnonzero(better[seg_of] & (pbest == seg[seg_of]))
             first = hit[np.unique(seg_of[hit], return_index=True)[1]]  # one parent per improved hex
             c = cmin[:, first].argmin(axis=0)
@@ -164,8 +168,8 @@ def _refine(B, err, scale, tol, upper, argmin, max_depth, max_boxes):
         org = org[k] + h * _CHILD_OFFSET[c]
 
         # cap the boxes per hex: keep the max_boxes with the lowest bounds (a boolean mask keeps the order)
-        starts = np.flatnonzero(np.r_[True, hid[1:] != hid[:-1]])
-        counts = np.diff(np.r_[starts, hid.size])
+        starts = np.flatnonzero(np.concatenate(([True], hid[1:] != hid[:-1])))
+        counts = np.diff(np.append(starts, hid.size))
         if counts.max() > max_boxes:
             order = np.lexsort((lo, hid))
             rank = np.arange(hid.size) - np.repeat(starts, counts)

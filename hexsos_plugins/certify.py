@@ -385,22 +385,25 @@ def _check_chunk(X, ctx: _Options) -> CheckResult:
     # scaled back exactly (ldexp) at the end.
     extent = (X.max(axis=1) - X.min(axis=1)).max(axis=0)
     _, e = np.frexp(extent)
-    X = np.ldexp(X, -e[None, None, :])
-    B, err = det_bernstein(X, layout="soa")
+    X = X * np.ldexp(1.0, -e)[None, None, :]  # times a power of two: exact
+    stats = {}
+    B, err = det_bernstein(X, layout="soa", stats=stats)
     m = X.shape[2]
-    scale = np.abs(B).max(axis=0)
+    scale = stats["max_abs"]
     edge_scale = err / (1024.0 * UNIT_ROUND)  # product of the largest edge L1 norms per direction
     flat = scale <= ctx.flat_rtol * edge_scale
-    corner_min = B[CORNER_COEFFS].min(axis=0)
+    corner_min = stats["corner_min"]
+    at_root_corner = np.ones(m, dtype=bool)  # argmin is still the root's best corner (its value: corner_min)
     method = np.full(m, _BERNSTEIN, dtype=np.int8)
     ratio = np.full(m, np.nan)
     sos_status = np.zeros(m, dtype=np.int8)
     sos_solves = 0
 
     if ctx.method == "auto":
-        br = bracket(B, err, rtol=ctx.rtol, max_depth=ctx.max_depth, max_boxes=ctx.max_boxes)
+        br = bracket(B, err, rtol=ctx.rtol, max_depth=ctx.max_depth, max_boxes=ctx.max_boxes, stats=stats)
         lower, argmin, boxes = br.lower, br.argmin, br.boxes
         method[br.depth > 0] = _SUBDIVISION
+        at_root_corner[br.depth > 0] = False
         refine = np.flatnonzero(br.depth > 0)
         if refine.size:
             x, _ = polish(B[:, refine], argmin[refine])
@@ -409,25 +412,23 @@ def _check_chunk(X, ctx: _Options) -> CheckResult:
         if open_.size:
             sos_solves = _run_sos(ctx, B, err, open_, argmin, lower, ratio, sos_status)
             method[open_] = _SOS
+            at_root_corner[open_] = False
     else:  # "sos": the relaxation on every hex, then proofs
         lower = np.full(m, -np.inf)
         argmin = np.zeros((m, 3))
-        argmin[:] = _CORNER_UVW[B[CORNER_COEFFS].argmin(axis=0)]
+        argmin[:] = _CORNER_UVW[stats["corner_arg"]]
         idx = np.flatnonzero(~flat)
         sos_solves = _run_sos(ctx, B, err, idx, argmin, lower, ratio, sos_status)
         method[:] = _SOS
-        lower = np.maximum(lower, B.min(axis=0) - err)  # the root Bernstein bound holds too
+        at_root_corner[idx] = False
+        lower = np.maximum(lower, stats["min"] - err)  # the root Bernstein bound holds too
         boxes = 0
 
-    # det J at argmin: where argmin is a corner, the corner coefficient is that value (the same triple
-    # product of edge vectors, bit for bit); elsewhere evaluate it from the vertices
+    # det J at argmin: where argmin is the root's best corner, its corner coefficient is that value (the same
+    # triple product of edge vectors as det_at computes there); elsewhere evaluate it from the vertices
     perr = err.copy()
-    min_det = np.empty(m)
-    at_corner = np.isin(argmin, (0.0, 1.0)).all(axis=1)
-    if at_corner.any():
-        k = (argmin[at_corner] * [18, 6, 2]).sum(axis=1).astype(np.int64)  # coefficient 9a + 3b + c, a = 2u ...
-        min_det[at_corner] = B[k, np.flatnonzero(at_corner)]
-    inside = np.flatnonzero(~at_corner)
+    min_det = corner_min.copy()
+    inside = np.flatnonzero(~at_root_corner)
     if inside.size:
         min_det[inside], perr[inside] = det_at(X[:, :, inside], argmin[inside], layout="soa")
     # a lower bound never exceeds a value: where rounding would say so, the value is the bound

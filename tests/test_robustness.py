@@ -194,3 +194,22 @@ def test_readers_survive_mutated_files(tmp_path):
     stats = fuzz(20.0, str(tmp_path))
     assert stats["crashes"] == []
     assert stats["files"] > 100 and stats["typed_errors"] > 0 and stats["read"] > 0
+
+
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(hexes, hexes)
+def test_property_repair_keeps_valid_hexes_and_repairs_invalid_ones(X, Y):
+    """Repair monotonicity: a valid hex comes back bit for bit; an invalid one comes back proven valid; in a
+    mesh, a valid hex that shares no vertex with an invalid one does not move."""
+    r = hs.check(np.stack([X, Y]).reshape(-1, 3), np.arange(16).reshape(2, 8))
+    Z, info = hs.repair_hex(np.stack([X, Y]))
+    for k, W in enumerate((X, Y)):
+        if r.status[k] == 1:
+            assert np.array_equal(Z[k], W)
+        else:
+            assert info["valid"][k] and hs.check(Z[k], [range(8)]).status[0] == 1
+    P = np.vstack([X, Y + 10.0])  # two separate hexes in one mesh
+    rep = hs.repair(P, np.arange(16).reshape(2, 8))
+    for k in range(2):
+        if r.status[k] == 1:
+            assert np.array_equal(rep.points[8 * k : 8 * k + 8], P[8 * k : 8 * k + 8])
