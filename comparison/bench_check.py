@@ -23,25 +23,10 @@ import numpy as np  # noqa: E402
 
 def gmsh_min_det(points, hexes, *, repeat=1):
     """Gmsh's minDetJac (times 8, in [0, 1]^3 units) and the best wall time of ``repeat`` runs."""
-    import gmsh
+    from comparison.against_gmsh import gmsh_qualities
 
-    gmsh.initialize(["-noenv"], readConfigFiles=False)
-    gmsh.option.setNumber("General.Terminal", 0)
-    gmsh.option.setNumber("General.NumThreads", 1)
-    try:
-        gmsh.model.add("bench")
-        gmsh.model.addDiscreteEntity(3, 1)
-        gmsh.model.mesh.addNodes(3, 1, np.arange(1, len(points) + 1), np.asarray(points, float).ravel())
-        tags = np.arange(1, len(hexes) + 1)
-        gmsh.model.mesh.addElementsByType(1, 5, tags, (np.asarray(hexes) + 1).ravel())
-        best = np.inf
-        for _ in range(repeat):
-            t = time.perf_counter()
-            q = gmsh.model.mesh.getElementQualities(tags, "minDetJac")
-            best = min(best, time.perf_counter() - t)
-        return 8.0 * np.asarray(q), best
-    finally:
-        gmsh.finalize()
+    qmin, _, seconds = gmsh_qualities(points, hexes, repeat=repeat)
+    return qmin, seconds
 
 
 def hexsos_check(points, hexes, *, repeat=1, **kw):

@@ -66,6 +66,11 @@ def _add_check_options(p):
                         "sos: the SOS relaxation on every hex, as the paper")
     p.add_argument("--relaxation", choices=("quad2", "paper"), default="quad2",
                    help="SOS relaxation (default quad2: order 2 with u(1-u) >= 0 ...; paper: section 4.2)")
+    add_run_options(p)
+
+
+def add_run_options(p):
+    """--jobs, --scheduler, --progress / --no-progress (shared by every command that runs the kernel)."""
     p.add_argument("--jobs", type=int, default=1, metavar="N",
                    help="worker processes (0: one per core; default 1)")
     p.add_argument("--scheduler", metavar="ADDRESS",
@@ -90,14 +95,20 @@ def _read_mesh(path, fix_orientation: bool):
     return mesh, orient
 
 
-def _cmd_check(args) -> int:
+def _read_and_check(path, args):
+    """Read ``path`` (flipping a left-handed file on request) and check it with the command's options."""
     from .certify import check
 
-    mesh, orient = _read_mesh(args.mesh, args.fix_orientation)
+    mesh, orient = _read_mesh(path, args.fix_orientation)
     bar = Progress("checking", enabled=args.progress)
     result = check(mesh.points, mesh.hexes, method=args.method, relaxation=args.relaxation, progress=bar,
                    jobs=args.jobs, scheduler=args.scheduler)
     bar.close()
+    return mesh, orient, result
+
+
+def _cmd_check(args) -> int:
+    mesh, orient, result = _read_and_check(args.mesh, args)
     warnings = []
     if args.output:
         from .io import write
@@ -144,14 +155,9 @@ def _one_line(result) -> str:
 
 
 def _cmd_convert(args) -> int:
-    from .certify import check
     from .io import write
 
-    mesh, orient = _read_mesh(args.input, args.fix_orientation)
-    bar = Progress("checking", enabled=args.progress)
-    result = check(mesh.points, mesh.hexes, method=args.method, relaxation=args.relaxation, progress=bar,
-                   jobs=args.jobs, scheduler=args.scheduler)
-    bar.close()
+    mesh, orient, result = _read_and_check(args.input, args)
     warnings = write(mesh.to_meshio(cell_data=result.cell_data()), args.output)
     if args.json:
         d = result.to_dict()
@@ -242,18 +248,10 @@ def build_parser() -> argparse.ArgumentParser:
     _add_check_options(p)
     p.set_defaults(func=_cmd_demo)
 
-    _register_more(sub)
+    from .cli_repair import add_parser as add_repair
+
+    add_repair(sub)
     return parser
-
-
-def _register_more(sub):
-    """Subcommands that live in their own modules (registered when those modules exist)."""
-    for name in ("repair",):
-        try:
-            mod = __import__(f"hexsos_plugins.cli_{name}", fromlist=["add_parser"])
-        except ImportError:
-            continue
-        mod.add_parser(sub)
 
 
 def main(argv=None) -> int:

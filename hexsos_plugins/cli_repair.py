@@ -22,6 +22,7 @@ __all__ = ["add_parser", "run", "plot_history"]
 
 def add_parser(subparsers):
     """Add the ``repair`` subcommand to ``subparsers`` (an ``argparse`` sub-parsers action)."""
+    from .cli import add_run_options
     from .meshrepair import DEFAULT_MARGIN, DEFAULT_RHO
 
     p = subparsers.add_parser(
@@ -52,13 +53,7 @@ def add_parser(subparsers):
     p.add_argument("--method", choices=("auto", "sos"), default="auto",
                    help="how the kernel finds u* in the iterations: auto (default) or sos (the moment relaxation "
                         "on every hex checked, as the paper; slow). The final certificate always uses auto")
-    p.add_argument("--jobs", type=int, default=1, metavar="N",
-                   help="worker processes for the per-hex repair steps and the checks (0: one per core; default 1)")
-    p.add_argument("--scheduler", metavar="ADDRESS",
-                   help="run them on a Dask cluster, e.g. tcp://host:8786 (needs the 'dask' extra)")
-    p.add_argument("--progress", dest="progress", action="store_true", default=None,
-                   help="show a progress bar on stderr even when it is not a terminal")
-    p.add_argument("--no-progress", dest="progress", action="store_false", help="never show a progress bar")
+    add_run_options(p)  # --jobs, --scheduler (the per-hex repair steps and the checks), --progress
     p.set_defaults(func=run)
     return p
 
