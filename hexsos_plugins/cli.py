@@ -188,9 +188,20 @@ def _cmd_demo(args) -> int:
     mesh = HexMesh.from_arrays(points, hexes)
     warnings = write(mesh.to_meshio(cell_data=result.cell_data()), out)
     m = info["inside_only_hex"]
+    picture = None
+    if not args.no_picture:
+        from .errors import DependencyError
+        from .viz import screenshot
+
+        try:
+            picture = screenshot(points, hexes, result, os.path.splitext(out)[0] + ".png",
+                                 title="hexsos demo: " + _one_line(result))
+        except DependencyError as exc:  # pyvista is the optional 'viz' extra
+            warnings.append(f"no picture: {exc}")
     if args.json:
         d = result.to_dict()
-        d.update({"output": out, "inside_only_hex": m, "generated_seconds": round(gen, 3), "warnings": warnings})
+        d.update({"output": out, "picture": picture, "inside_only_hex": m, "generated_seconds": round(gen, 3),
+                  "warnings": warnings})
         print(json.dumps(d))
         return 0
     u, v, w = result.argmin[m]
@@ -202,6 +213,9 @@ def _cmd_demo(args) -> int:
           f"{'invalid' if result.status[m] == 0 else 'not proven invalid'}).")
     print(f"\nwrote {out} (cell arrays hexsos_min_det, hexsos_lower_bound, hexsos_argmin, hexsos_status, "
           "hexsos_corner_min_det); open it in ParaView or Gmsh")
+    if picture:
+        print(f"wrote {picture}: invalid hexes red, the one that folds inside only magenta, black spheres where "
+              "det J is smallest")
     for wmsg in warnings:
         sys.stderr.write(f"hexsos: warning: {wmsg}\n")
     return 0
@@ -245,6 +259,7 @@ def build_parser() -> argparse.ArgumentParser:
                                    "write the result.")
     p.add_argument("-o", "--output", metavar="OUT", help="where to write the annotated mesh (default ./hexsos-demo.vtu)")
     p.add_argument("--json", action="store_true", help="print one JSON object instead of the summary")
+    p.add_argument("--no-picture", action="store_true", help="do not render OUT's picture (.png beside OUT)")
     _add_check_options(p)
     p.set_defaults(func=_cmd_demo)
 

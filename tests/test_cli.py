@@ -45,6 +45,8 @@ def test_demo_writes_the_annotated_mesh(tmp_path, capsys, demo_arrays):
     assert cli.main(["demo", "-o", str(out)]) == 0
     text = capsys.readouterr().out
     assert "invalid inside only" in text and "what corner checks miss" in text
+    png = tmp_path / "d.png"  # the picture beside OUT
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 20000 and f"wrote {png}" in text
     m = meshio.read(out)
     P, H, info = demo_arrays
     ref = hs.check(P, H)
@@ -57,9 +59,10 @@ def test_demo_writes_the_annotated_mesh(tmp_path, capsys, demo_arrays):
 
 def test_demo_default_output_goes_to_the_working_directory(tmp_path, monkeypatch, capsys):
     monkeypatch.chdir(tmp_path)
-    assert cli.main(["demo", "--json"]) == 0
+    assert cli.main(["demo", "--json", "--no-picture"]) == 0
     d = json.loads(capsys.readouterr().out)
     assert os.path.exists(tmp_path / "hexsos-demo.vtu") and d["invalid_inside_only"] >= 1
+    assert d["picture"] is None and not os.path.exists(tmp_path / "hexsos-demo.png")
 
 
 def test_check_summary_and_exit_code(demo_file, capsys, demo_arrays):
