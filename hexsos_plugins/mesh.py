@@ -40,7 +40,7 @@ import meshio
 import numpy as np
 
 from .errors import InvalidInputError, NoHexahedraError
-from .hexahedron import VOXEL_TO_VTK, det_at
+from .hexahedron import VOXEL_TO_VTK, det_at, gather_t
 
 __all__ = ["HexMesh", "HEX_FACES", "FLIP", "INT_FILL", "HEX_TYPES"]
 
@@ -57,6 +57,7 @@ INT_FILL = -2
 #: meshio cell types that hold trilinear hexahedra.
 HEX_TYPES = ("hexahedron", "voxel")
 
+_CENTRE_CHUNK = 65536
 _CENTRE = np.array([0.5, 0.5, 0.5])
 
 
@@ -312,8 +313,13 @@ class HexMesh:
         return f"HexMesh({self.n_points} points, {self.n_hexes} hexahedra; blocks: {kinds}{where})"
 
     def _centre_det(self) -> np.ndarray:
-        d, _ = det_at(self.points[self.hexes], _CENTRE)  # (M, 8, 3) vertex coordinates
-        return d
+        # in chunks: the vertex coordinates of all hexes at once would be 192 bytes per hex, twice
+        PT = np.ascontiguousarray(self.points.T)
+        out = np.empty(len(self.hexes))
+        for s in range(0, len(self.hexes), _CENTRE_CHUNK):
+            X = gather_t(PT, self.hexes[s : s + _CENTRE_CHUNK])
+            out[s : s + _CENTRE_CHUNK] = det_at(X, _CENTRE, layout="soa")[0]
+        return out
 
     # ------------------------------------------------------------------ orientation
     def orientation(self) -> str:
