@@ -456,18 +456,21 @@ def _check_chunk(X, ctx: _Options) -> CheckResult:
             status[todo[min_det[todo] + perr[todo] <= 0]] = 0
             method[todo] = _SUBDIVISION
 
-    # signs within the rounding bound: decide in exact rational arithmetic
-    near = np.flatnonzero((status == -1) & ~flat)
+    # signs within the rounding bound (the witness's value, or the smallest root coefficient, closer to 0 than
+    # its error bound): decide in exact rational arithmetic
+    near = np.flatnonzero((status == -1) & ~flat & ((min_det - perr <= 0) | (np.abs(stats["min"]) <= err)))
     for i in near:
         s = _exact_decision(X[:, :, i].T, argmin[i])
         if s is not None:
-            status[i], lo, witness = s
+            status[i], lo, witness, value = s
             method[i] = _EXACT
             if lo is not None:
                 lower[i] = max(lower[i], lo)
             if witness is not None:
                 argmin[i] = witness
-                min_det[i] = det_at(X[:, :, i : i + 1], witness, layout="soa")[0][0]
+            if value is not None:  # the witness's exact det J (<= 0), rounded down
+                min_det[i] = value
+                lower[i] = min(lower[i], value)
     status[flat] = -1
     method[flat] = _FLAT
     e3 = 3 * e
@@ -505,19 +508,24 @@ def _run_sos(ctx, B, err, idx, argmin, lower, ratio, sos_status) -> int:
 def _exact_decision(X8, uvw):
     """Verdict in exact rational arithmetic for one hex whose sign lies inside the rounding bound.
 
-    Returns ``(status, lower bound or None, witness uvw or None)``, or None when exact arithmetic
-    cannot decide either.
+    Returns ``(status, lower bound or None, new witness uvw or None, witness value or None)``, or None when
+    exact arithmetic cannot decide either. Values are floats rounded down from the exact rationals.
     """
-    if det_exact(X8, uvw) <= 0:
-        return 0, None, None
+    exact = det_exact(X8, uvw)
+    if exact <= 0:
+        return 0, None, None, _round_down(exact)
     coeffs = bernstein_exact(X8)
     corners = [coeffs[int(k)] for k in CORNER_COEFFS]
     k = min(range(8), key=corners.__getitem__)
     if corners[k] <= 0:
-        return 0, None, _CORNER_UVW[k].copy()
+        return 0, None, _CORNER_UVW[k].copy(), _round_down(corners[k])
     low = min(coeffs)
-    if low > 0:
-        f = float(low)
-        lo = math.nextafter(f, -math.inf) if f > low else f  # round the bound down
-        return 1, (lo if lo > 0 else 5e-324), None
+    if low > 0:  # proven exactly; the float bound is rounded down (0.0 only if it underflows)
+        return 1, _round_down(low), None, None
     return None
+
+
+def _round_down(q) -> float:
+    """The largest float <= the rational q."""
+    f = float(q)
+    return math.nextafter(f, -math.inf) if f > q else f
