@@ -63,26 +63,33 @@ def monomials_upto(d: int):
             if sum(m) <= d]
 
 
+_SVEC_INDEX = {}
+
+
+def _svec_index(n: int):
+    """Rows, columns and weights of Clarabel's svec order for n x n: (0,0), (0,1), (1,1), (0,2), ..."""
+    if n not in _SVEC_INDEX:
+        rows = np.array([i for j in range(n) for i in range(j + 1)])
+        cols = np.array([j for j in range(n) for i in range(j + 1)])
+        _SVEC_INDEX[n] = (rows, cols, np.where(rows == cols, 1.0, _SQRT2))
+    return _SVEC_INDEX[n]
+
+
 def svec(S) -> np.ndarray:
     """Clarabel's vectorization of a symmetric n x n matrix: upper triangle column by column,
     off-diagonal entries times sqrt(2)."""
     S = np.asarray(S, dtype=np.float64)
-    n = S.shape[0]
-    out = []
-    for j in range(n):
-        for i in range(j + 1):
-            out.append(S[i, j] if i == j else _SQRT2 * S[i, j])
-    return np.array(out)
+    rows, cols, w = _svec_index(S.shape[0])
+    return S[rows, cols] * w
 
 
 def smat(v, n: int) -> np.ndarray:
     """Inverse of :func:`svec`."""
+    rows, cols, w = _svec_index(n)
     S = np.empty((n, n))
-    k = 0
-    for j in range(n):
-        for i in range(j + 1):
-            S[i, j] = S[j, i] = v[k] if i == j else v[k] / _SQRT2
-            k += 1
+    vals = np.asarray(v, dtype=np.float64) / w
+    S[rows, cols] = vals
+    S[cols, rows] = vals
     return S
 
 
@@ -207,6 +214,9 @@ class SOSSolver:
         self._clarabel = clarabel
         self.relaxation = relax
         self.support, self.index, self.block_maps = _structure(self.relaxation)
+        # dense copies for the certificate check (at most 56 x 55: dense products beat sparse ones here)
+        self._dense_maps = [Am.toarray() for Am in self.block_maps]
+        self._abs_maps = [np.abs(D) for D in self._dense_maps]
         self.sizes = [len(b) for _, b in self.relaxation.blocks]
         self._fidx = np.array([self.index[m] for m in MONOMIALS])
         ns = len(self.support)
@@ -316,7 +326,7 @@ class SOSSolver:
         total = np.zeros(self._ns)
         mag = np.zeros(self._ns)
         nterms = 0
-        for (g, basis), Q, Am in zip(self.relaxation.blocks, solution.gram, self.block_maps):
+        for (g, basis), Q, Am, Aabs in zip(self.relaxation.blocks, solution.gram, self._dense_maps, self._abs_maps):
             if not np.all(np.isfinite(Q)):
                 return float("-inf")
             w, V = np.linalg.eigh(Q)
@@ -324,7 +334,7 @@ class SOSSolver:
             Qp = L @ L.T
             Qabs = np.abs(L) @ np.abs(L).T
             total += Am @ svec(Qp)
-            mag += np.abs(Am) @ svec(Qabs)
+            mag += Aabs @ svec(Qabs)
             nterms = max(nterms, len(basis) + 4)
         r = f - total
         r[self.index[(0, 0, 0)]] -= solution.lam
