@@ -1,6 +1,6 @@
 """Memory and time of checking a large mesh (default: 2 million hexes), in process and through the CLI.
 
-    python -m comparison.bench_scale [--n 126] [--jobs 1 2] [--cli]
+    python -m comparison.bench_scale [--n 126] [--jobs 1 2] [--cli] [--dask]
 
 Builds an n^3 structured grid (126^3 = 2,000,376 hexes) with a deterministic perturbation (a smooth
 twist plus noise, so that some hexes need subdivision and a few are invalid), then
@@ -48,6 +48,7 @@ def main(argv=None):
     ap.add_argument("--n", type=int, default=126, help="grid size n (n^3 hexes; default 126: 2,000,376)")
     ap.add_argument("--jobs", type=int, nargs="+", default=[1, 2])
     ap.add_argument("--cli", action="store_true", help="also run 'hexsos check' on a .vtu under /usr/bin/time -v")
+    ap.add_argument("--dask", action="store_true", help="also check on a Dask LocalCluster of 1 and 2 workers")
     args = ap.parse_args(argv)
 
     from hexsos_plugins import check
@@ -66,6 +67,18 @@ def main(argv=None):
         rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
         print(f"check jobs={jobs}: {dt:.2f} s ({len(H) / dt:,.0f} hexes/s), peak allocations during the call "
               f"{peak / 2**20:.0f} MB, process peak RSS so far {rss:.0f} MB; {r.counts()}")
+    if args.dask:
+        from dask.distributed import Client, LocalCluster
+
+        seconds = {}
+        for workers in (1, 2):
+            with LocalCluster(n_workers=workers, threads_per_worker=1, dashboard_address=None) as lc, Client(lc) as c:
+                check(*big_mesh(8), scheduler=c)  # start the workers' imports
+                t = time.perf_counter()
+                r = check(P, H, scheduler=c)
+                seconds[workers] = time.perf_counter() - t
+            print(f"check on a Dask LocalCluster, {workers} worker(s): {seconds[workers]:.2f} s; {r.counts()}")
+        print(f"Dask speed-up from 1 to 2 workers: {seconds[1] / seconds[2]:.2f}x")
     if args.cli:
         import meshio
 
