@@ -74,6 +74,12 @@ def run(args) -> int:
         raise MeshWriteError(f"{args.output}: is the input file; the input is never modified, give another OUT")
     if args.plot and _same_file(args.mesh, args.plot):
         raise MeshWriteError(f"{args.plot}: is the input file; give another PNG path")
+    for target in [args.output] + ([args.plot] if args.plot else []):  # fail now, not after a long repair
+        directory = os.path.dirname(os.path.abspath(target))
+        if not os.path.isdir(directory):
+            raise MeshWriteError(f"{target}: cannot write, the directory {directory} does not exist")
+        if not os.access(directory, os.W_OK):
+            raise MeshWriteError(f"{target}: cannot write, the directory {directory} is not writable")
     mesh, orient = _read_mesh(args.mesh, args.fix_orientation)
     bar = Progress("repairing", enabled=args.progress)
     best = _Best()

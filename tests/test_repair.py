@@ -409,3 +409,19 @@ def test_interrupted_repair_leaves_no_output_and_saves_a_checkpoint(tmp_path, si
     r = subprocess.run([sys.executable, "-m", "hexsos_plugins", "repair", ckpt, "-o", str(out), "--max-iter", "2",
                         "--no-fidelity", "--json"], capture_output=True, text=True, timeout=120)
     assert r.returncode in (0, 1) and out.exists()
+
+
+def test_unwritable_output_fails_before_the_repair(tmp_path, capsys, monkeypatch):
+    import meshio
+
+    from hexsos_plugins import cli
+
+    P, H = structured_grid(2)
+    P = P.copy()
+    P[0] = [0.8, 0.8, 0.8]
+    src = tmp_path / "tangle.vtu"
+    meshio.write(src, meshio.Mesh(P, [("hexahedron", H)]))
+    calls = []
+    monkeypatch.setattr("hexsos_plugins.meshrepair._repair", lambda *a, **k: calls.append(1))
+    assert cli.main(["repair", str(src), "-o", str(tmp_path / "missing" / "out.vtu")]) == 2
+    assert "does not exist" in capsys.readouterr().err and calls == []  # refused before any repair work
