@@ -391,6 +391,17 @@ def _repairable():
     return P, H
 
 
+def _write_repairable(directory) -> str:
+    """:func:`_repairable` written by Gmsh as a .msh in ``directory``; returns its path."""
+    path = str(directory / "repairable.msh")
+    gmsh.initialize(readConfigFiles=False)
+    gmsh.option.setNumber("General.Terminal", 0)
+    gm.add_hex_mesh(*_repairable())
+    gmsh.write(path)
+    gmsh.finalize()
+    return path
+
+
 def test_panel_repair_button_moves_the_nodes_in_the_model(session):
     P, H = _repairable()
     ref = check(P, H)
@@ -515,12 +526,7 @@ def test_cli_headless_without_display_and_repair(demo_msh, tmp_path, capsys, mon
     assert main(["--demo", "-o", str(tmp_path / "v.msh")]) == 1  # no display: headless, no -nopopup needed
     out = capsys.readouterr().out
     assert _counts_in(out)["invalid_inside_only"] == 1 and (tmp_path / "v.msh").exists()
-    path = str(tmp_path / "repairable.msh")
-    gmsh.initialize(readConfigFiles=False)
-    gmsh.option.setNumber("General.Terminal", 0)
-    gm.add_hex_mesh(*_repairable())
-    gmsh.write(path)
-    gmsh.finalize()
+    path = _write_repairable(tmp_path)
     assert main([path, "--auto-action", "repair"]) == 0
     out = capsys.readouterr().out
     assert "certified" in out and _counts_in(out)["invalid"] == 0
@@ -650,12 +656,7 @@ def test_gui_event_loop_under_xvfb(demo, demo_msh, tmp_path):
 
 @pytest.mark.skipif(shutil.which("xvfb-run") is None, reason=NO_XVFB)
 def test_gui_repair_button_under_xvfb(tmp_path):
-    path = str(tmp_path / "repairable.msh")
-    gmsh.initialize(readConfigFiles=False)
-    gmsh.option.setNumber("General.Terminal", 0)
-    gm.add_hex_mesh(*_repairable())
-    gmsh.write(path)
-    gmsh.finalize()
+    path = _write_repairable(tmp_path)
     proc, img = _gui_run(path, tmp_path, "repair")
     assert proc.returncode == 0, proc.stdout + proc.stderr
     assert "certified" in proc.stdout and _counts_in(proc.stdout)["invalid"] == 0
