@@ -22,7 +22,7 @@ __all__ = ["add_parser", "run", "plot_history"]
 
 def add_parser(subparsers):
     """Add the ``repair`` subcommand to ``subparsers`` (an ``argparse`` sub-parsers action)."""
-    from .cli import add_run_options
+    from .cli_common import add_run_options
     from .meshrepair import DEFAULT_MARGIN, DEFAULT_RHO
 
     p = subparsers.add_parser(
@@ -67,7 +67,7 @@ def _same_file(a, b) -> bool:
 
 def run(args) -> int:
     """The handler of ``hexsos repair``; returns the exit code."""
-    from .cli import Progress, _read_mesh
+    from .cli_common import Progress, read_mesh
     from .meshrepair import repair
 
     if _same_file(args.mesh, args.output):
@@ -80,7 +80,7 @@ def run(args) -> int:
             raise MeshWriteError(f"{target}: cannot write, the directory {directory} does not exist")
         if not os.access(directory, os.W_OK):
             raise MeshWriteError(f"{target}: cannot write, the directory {directory} is not writable")
-    mesh, orient = _read_mesh(args.mesh, args.fix_orientation)
+    mesh, orient = read_mesh(args.mesh, args.fix_orientation)
     bar = Progress("repairing", enabled=args.progress)
     best = _Best()
     try:

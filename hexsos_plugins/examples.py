@@ -9,6 +9,7 @@ import numpy as np
 
 from .errors import DependencyError
 from .hexahedron import CORNERS
+from .mesh import hexes_to_mesh  # noqa: F401 (re-exported: examples build meshes with it)
 
 __all__ = [
     "unit_cube",
@@ -74,12 +75,6 @@ def random_hexes(m: int, *, sigma: float = 0.3, seed: int = 0) -> np.ndarray:
     """The paper's random family: the unit cube's vertices plus isotropic Gaussian noise, (m, 8, 3)."""
     rng = np.random.default_rng(seed)
     return unit_cube()[None] + sigma * rng.standard_normal((m, 8, 3))
-
-
-def hexes_to_mesh(X):
-    """Separate hexes (M, 8, 3) as a mesh: points (8 M, 3) and hexes (M, 8) (no shared vertices)."""
-    X = np.asarray(X, dtype=np.float64).reshape(-1, 8, 3)
-    return X.reshape(-1, 3).copy(), np.arange(X.shape[0] * 8, dtype=np.int64).reshape(-1, 8)
 
 
 def structured_grid(nx: int, ny: int | None = None, nz: int | None = None, *, size=(1.0, 1.0, 1.0)):

@@ -42,7 +42,7 @@ import numpy as np
 from .errors import InvalidInputError, NoHexahedraError
 from .hexahedron import VOXEL_TO_VTK, det_at, gather_t
 
-__all__ = ["HexMesh", "HEX_FACES", "FLIP", "INT_FILL", "HEX_TYPES"]
+__all__ = ["HexMesh", "HEX_FACES", "FLIP", "INT_FILL", "HEX_TYPES", "hexes_to_mesh"]
 
 #: The six faces of a hexahedron (VTK node order), each ordered so that the right-hand-rule normal points
 #: out of a positively oriented hex.
@@ -172,6 +172,12 @@ def _spread(name, values, n_rows, hex_blocks, blocks, what="cell_data"):
         else:
             out.append(np.full((len(block.data),) + arr.shape[1:], fill, dtype=arr.dtype))
     return out
+
+
+def hexes_to_mesh(X):
+    """Separate hexes (M, 8, 3) as a mesh: points (8 M, 3) and hexes (M, 8) (no shared vertices)."""
+    X = np.asarray(X, dtype=np.float64).reshape(-1, 8, 3)
+    return X.reshape(-1, 3).copy(), np.arange(X.shape[0] * 8, dtype=np.int64).reshape(-1, 8)
 
 
 def boundary_face_rows(hexes):

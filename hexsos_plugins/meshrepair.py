@@ -69,9 +69,8 @@ import numpy as np
 
 from .certify import CheckResult, check, validate_arrays
 from .errors import InvalidInputError
-from .examples import hexes_to_mesh
 from .hexahedron import det_at, det_vertex_gradient
-from .mesh import boundary_face_rows
+from .mesh import boundary_face_rows, hexes_to_mesh
 
 __all__ = ["repair", "repair_hex", "RepairResult", "DEFAULT_MARGIN", "DEFAULT_RHO", "hex_edge_length",
            "boundary_vertex_mask"]
@@ -601,7 +600,8 @@ def repair(points, hexes, *, rho: float = DEFAULT_RHO, margin=None, pin_boundary
 
     Examples
     --------
-    >>> from hexsos_plugins.examples import inside_invalid_hex, hexes_to_mesh
+    >>> from hexsos_plugins.examples import inside_invalid_hex
+    >>> from hexsos_plugins.mesh import hexes_to_mesh
     >>> P, H = hexes_to_mesh(inside_invalid_hex())
     >>> r = repair(P, H)
     >>> r.success, r.stats["invalid_before"], r.stats["invalid_after"]
