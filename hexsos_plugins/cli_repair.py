@@ -1,8 +1,8 @@
-"""``hexsos repair IN -o OUT``: repair a hex mesh until every hex is proven valid, and write it.
+"""``hexsos repair IN -o OUT``: untangle, raise the quality, prove every cell valid, and write the mesh.
 
 Registered by :func:`hexsos_plugins.cli.build_parser` through :func:`add_parser`. The handler returns the exit
-code: 0 every hex proven valid, 1 the repair ran but did not prove every hex valid (OUT is still written, with
-the best mesh seen); errors are raised as :class:`~hexsos_plugins.errors.HexsosError` (the CLI's wrapper
+code: 0 every cell proven valid (and ``--min-sj`` reached), 1 the repair ran but did not prove every cell valid
+(OUT is still written, with the best mesh seen) or did not reach ``--min-sj``; errors are raised as :class:`~hexsos_plugins.errors.HexsosError` (the CLI's wrapper
 prints one line and exits 2).
 """
 
@@ -17,7 +17,7 @@ import numpy as np
 
 from .errors import DependencyError, MeshWriteError
 
-__all__ = ["add_parser", "run", "plot_history"]
+__all__ = ["add_parser", "run", "plot_history", "plot_histogram", "other_cells"]
 
 
 def add_parser(subparsers):
@@ -26,36 +26,73 @@ def add_parser(subparsers):
     from .meshrepair import DEFAULT_MARGIN, DEFAULT_RHO
 
     p = subparsers.add_parser(
-        "repair", help="move vertices as little as possible until every hex is proven valid, and write the mesh",
-        description="Repair IN with the paper's Algorithms 1 and 2 (per-hex projection at the exact minimizer of "
-                    "det J, then averaging), until the kernel proves every hexahedron valid. Writes OUT with "
-                    "everything of the input kept, plus point data hexsos_displacement and the kernel's cell "
-                    "arrays after repair. Exit 0 when every hex is proven valid, 1 when not (OUT holds the best "
-                    "mesh seen), 2 on errors.")
+        "repair", help="untangle, raise the minimum scaled Jacobian, and prove every cell valid; write the mesh",
+        description="Repair IN: (1) untangle (a regularized barrier on corner Jacobians and on the Bernstein "
+                    "coefficients of det J), (2) raise the minimum corner scaled Jacobian while keeping every hex "
+                    "valid, (3) prove every hexahedron valid with the kernel and check every other 3-D cell. "
+                    "--method paper runs the paper's Algorithms 1 and 2 instead. Writes OUT with everything of the "
+                    "input kept, plus point data hexsos_displacement and the kernel's cell arrays after repair. "
+                    "Exit 0 when every cell is proven valid (and --min-sj is reached), 1 when not (OUT holds the "
+                    "best mesh seen), 2 on errors.")
     p.add_argument("mesh", metavar="IN", help="the mesh to repair (any format meshio reads); never modified")
     p.add_argument("-o", "--output", metavar="OUT", required=True,
                    help="where to write the repaired mesh (any format meshio writes; written atomically)")
+    p.add_argument("--method", choices=("optimize", "paper", "auto", "sos"), default="optimize",
+                   help="optimize (default): untangle, raise the quality, certify; paper: the paper's Algorithms 1 "
+                        "and 2 (Table 1). auto / sos: paper, with that kernel method")
+    p.add_argument("--boundary", choices=("slide", "fixed", "free"), default=None,
+                   help="slide (default): boundary vertices stay on the input's boundary surface, feature-edge "
+                        "vertices on their features, feature corners fixed; fixed: pinned; free: may move "
+                        "(--method paper: fixed or free, default free)")
+    p.add_argument("--min-sj", type=float, default=None, metavar="TARGET",
+                   help="stop raising the quality once every cell's scaled Jacobian reaches TARGET (exit 1 if it is "
+                        "not reached). Default: as high as it goes (until the minimum rises by less than 1e-3 in 3 "
+                        "rounds, or --max-iter / --time-limit)")
+    p.add_argument("--feature-angle", type=float, default=45.0, metavar="DEG",
+                   help="--boundary slide: boundary edges whose faces' normals differ by more than DEG are feature "
+                        "edges (default 45)")
+    p.add_argument("--time-limit", type=float, default=None, metavar="S",
+                   help="seconds for untangling and quality (default: no limit); the certificate always runs")
+    p.add_argument("--max-iter", type=int, default=None,
+                   help="most outer steps per stage (optimize: default 60 untangling steps, 40 quality rounds; "
+                        "paper: most outer iterations, default 100)")
+    p.add_argument("--no-fallback", dest="fallback", action="store_false",
+                   help="optimize: do not finish with the paper's Algorithm 2 when the optimizer ends uncertified")
     p.add_argument("--rho", type=float, default=DEFAULT_RHO,
-                   help=f"weight of the repaired hexes in the vertex update (default {DEFAULT_RHO:g}, the paper's)")
+                   help=f"paper: weight of the repaired hexes in the vertex update (default {DEFAULT_RHO:g})")
     p.add_argument("--margin", type=float, default=None,
-                   help=f"relative margin c > 0: each projection asks det J(u*) >= c * h^3, h the hex's mean edge "
-                        f"length (default {DEFAULT_MARGIN:g})")
-    p.add_argument("--pin-boundary", action="store_true",
-                   help="keep the boundary vertices (on quads of one hex only) fixed")
-    p.add_argument("--max-iter", type=int, default=100, help="most outer iterations (default 100)")
+                   help=f"paper: relative margin c > 0, each projection asks det J(u*) >= c * h^3 (default "
+                        f"{DEFAULT_MARGIN:g})")
+    p.add_argument("--pin-boundary", action="store_true", help="the same as --boundary fixed")
+    p.add_argument("--kernel-method", choices=("auto", "sos"), default="auto",
+                   help="paper: how the kernel finds u* in the iterations (sos: the moment relaxation, slow)")
     p.add_argument("--json", action="store_true", help="print one JSON object with the statistics")
-    p.add_argument("--plot", metavar="PNG", help="write the convergence plot (invalid hexes and min det J per "
-                                                 "iteration) as a PNG (needs matplotlib)")
+    p.add_argument("--plot", metavar="PNG", help="write the convergence plot (cells not proven valid, min det J and "
+                                                 "min scaled Jacobian per step) as a PNG (needs matplotlib)")
+    p.add_argument("--histogram", metavar="PNG", help="write the scaled Jacobian histogram before / after as a PNG")
     p.add_argument("--fix-orientation", action="store_true",
                    help="flip the hexes of a left-handed file (all hexes negatively oriented) first")
     p.add_argument("--no-fidelity", dest="fidelity", action="store_false",
                    help="skip the boundary fidelity (Hausdorff distance with pymeshlab)")
-    p.add_argument("--method", choices=("auto", "sos"), default="auto",
-                   help="how the kernel finds u* in the iterations: auto (default) or sos (the moment relaxation "
-                        "on every hex checked, as the paper; slow). The final certificate always uses auto")
-    add_run_options(p)  # --jobs, --scheduler (the per-hex repair steps and the checks), --progress
+    add_run_options(p)  # --jobs, --scheduler (the kernel calls), --progress
     p.set_defaults(func=run)
     return p
+
+
+def other_cells(mesh) -> list:
+    """The 3-D cells of a :class:`~hexsos_plugins.mesh.HexMesh` that are not its trilinear hexahedra, as
+    (type, conn) in VTK node order: from ``mesh.cells`` when the reader provides it, else from the meshio
+    blocks of ``mesh.source`` (meshio's linear and quadratic 3-D types keep VTK's node order)."""
+    from .elements import ELEMENTS
+
+    blocks = getattr(mesh, "cells", None)
+    if blocks is None:
+        blocks = [(b.type, b.data) for b in mesh.source.cells]
+    out = []
+    for name, conn in blocks:
+        if name in ELEMENTS and name != "hexahedron":
+            out.append((name, np.asarray(conn, dtype=np.int64)))
+    return out
 
 
 def _same_file(a, b) -> bool:
@@ -72,23 +109,34 @@ def run(args) -> int:
 
     if _same_file(args.mesh, args.output):
         raise MeshWriteError(f"{args.output}: is the input file; the input is never modified, give another OUT")
-    if args.plot and _same_file(args.mesh, args.plot):
-        raise MeshWriteError(f"{args.plot}: is the input file; give another PNG path")
-    for target in [args.output] + ([args.plot] if args.plot else []):  # fail now, not after a long repair
+    pngs = [x for x in (args.plot, args.histogram) if x]
+    for png in pngs:
+        if _same_file(args.mesh, png):
+            raise MeshWriteError(f"{png}: is the input file; give another PNG path")
+    for target in [args.output] + pngs:  # fail now, not after a long repair
         directory = os.path.dirname(os.path.abspath(target))
         if not os.path.isdir(directory):
             raise MeshWriteError(f"{target}: cannot write, the directory {directory} does not exist")
         if not os.access(directory, os.W_OK):
             raise MeshWriteError(f"{target}: cannot write, the directory {directory} is not writable")
     mesh, orient = read_mesh(args.mesh, args.fix_orientation)
+    cells = other_cells(mesh)
+    method, kernel_method = args.method, args.kernel_method
+    if method in ("auto", "sos"):
+        method, kernel_method = "paper", method
+    boundary = args.boundary
+    if boundary is None:
+        boundary = "fixed" if args.pin_boundary else ("free" if method == "paper" else "slide")
     bar = Progress("repairing", enabled=args.progress)
     best = _Best()
     try:
         with _sigterm_as_interrupt():
-            result = repair(mesh.points, mesh.hexes, rho=args.rho, margin=args.margin,
-                            pin_boundary=args.pin_boundary, max_iter=args.max_iter, method=args.method,
-                            progress=bar, jobs=args.jobs, scheduler=args.scheduler, callback=best)
-            return _finish(args, mesh, orient, result, bar)
+            result = repair(mesh.points, mesh.hexes, cells=cells, method=method, boundary=boundary,
+                            min_sj=args.min_sj, max_iter=args.max_iter, time_limit=args.time_limit,
+                            feature_angle=args.feature_angle, fallback=args.fallback, rho=args.rho,
+                            margin=args.margin, kernel_method=kernel_method, progress=bar, jobs=args.jobs,
+                            scheduler=args.scheduler, callback=best)
+            return _finish(args, mesh, orient, result, bar, cells)
     except KeyboardInterrupt:
         bar.close()
         return _interrupted(args, mesh, best)
@@ -102,7 +150,8 @@ class _Best:
         self.key, self.points, self.entry = None, None, None
 
     def __call__(self, entry, points):
-        key = (-(entry["invalid"] + entry.get("undecided", 0)), entry["min_det"])
+        bad = entry["invalid"] + entry.get("undecided", 0) + entry.get("other_invalid", 0)
+        key = (-bad, entry.get("min_sj", entry["min_det"]) if bad == 0 else entry["min_det"])
         if self.key is None or key > self.key:
             self.key, self.points, self.entry = key, np.array(points), dict(entry)
         return False
@@ -150,14 +199,17 @@ def _interrupted(args, mesh, best) -> int:
           path)
     e = best.entry
     sys.stderr.write(f"hexsos: interrupted; {args.output} was not written. The best mesh so far (outer iteration "
-                     f"{e['iteration']}: {e['invalid'] + e.get('undecided', 0)} hexes not proven valid) is saved in "
+                     f"{e['iteration']}: {e['invalid'] + e.get('undecided', 0) + e.get('other_invalid', 0)} cells not "
+                     f"proven valid) is saved in "
                      f"{path}; resume with: hexsos repair {path} -o {args.output}\n")
     return 130
 
 
-def _finish(args, mesh, orient, result, bar) -> int:
+def _finish(args, mesh, orient, result, bar, cells) -> int:
     """Everything after the repair: fidelity, writing OUT, the certificate of the file, the report."""
     from .io import read, write
+    from .meshrepair import check_cells
+    from .quality import scaled_jacobian
 
     bar.close()
 
@@ -166,12 +218,14 @@ def _finish(args, mesh, orient, result, bar) -> int:
         from .fidelity import boundary_fidelity
 
         try:
-            fidelity = boundary_fidelity(mesh.points, result.points, mesh.hexes)
+            fidelity = boundary_fidelity(mesh.points, result.points, mesh.hexes, cells=cells)
         except DependencyError as exc:
             fidelity_note = str(exc)
 
+    cell_data = dict(result.check.cell_data())
+    cell_data["hexsos_scaled_jacobian"] = scaled_jacobian(result.points, mesh.hexes)
     out_mesh = mesh.with_points(result.points).to_meshio(
-        cell_data=result.check.cell_data(), point_data={"hexsos_displacement": result.displacement})
+        cell_data=cell_data, point_data={"hexsos_displacement": result.displacement})
     warnings = write(out_mesh, args.output)
 
     # the certificate is about the coordinates as written: read them back, re-check if the format rounded them
@@ -182,14 +236,20 @@ def _finish(args, mesh, orient, result, bar) -> int:
     else:
         from .certify import check
 
-        file_certified = bool((check(written.points, written.hexes).status == 1).all())
+        ok_other = all((o["status"] == 1).all() for o in check_cells(written.points, cells))
+        file_certified = bool((check(written.points, written.hexes).status == 1).all()) and ok_other
         warnings.append("the format rounded the coordinates; re-checked as written: "
-                        + ("every hex still proven valid" if file_certified else "NOT every hex proven valid"))
+                        + ("every cell still proven valid" if file_certified else "NOT every cell proven valid"))
 
     if args.plot:
         plot_history(result.history, args.plot, title=os.path.basename(args.mesh))
+    if args.histogram:
+        plot_histogram(scaled_jacobian(mesh.points, [("hexahedron", mesh.hexes)] + cells),
+                       scaled_jacobian(result.points, [("hexahedron", mesh.hexes)] + cells), args.histogram,
+                       title=os.path.basename(args.mesh))
 
     stats = dict(result.stats)
+    target_ok = stats.get("min_sj_target_reached") is not False
     stats.update({
         "file": args.mesh,
         "output": args.output,
@@ -201,24 +261,30 @@ def _finish(args, mesh, orient, result, bar) -> int:
         "history": result.history,
         "warnings": warnings + ([fidelity_note] if fidelity_note else []),
     })
-    if args.plot:
-        stats["plot"] = args.plot
+    if not target_ok:
+        stats["warnings"].append(f"the target --min-sj {stats['min_sj_target']:g} was not reached (min scaled "
+                                 f"Jacobian {stats['min_sj_after']:.4f})")
+    for key, png in (("plot", args.plot), ("histogram", args.histogram)):
+        if png:
+            stats[key] = png
     if args.json:
         print(json.dumps(stats, default=_jsonable))
     else:
-        print(f"{args.mesh}: {mesh.hexes.shape[0]} hexahedra, {mesh.points.shape[0]} points")
+        n_other = sum(c.shape[0] for _, c in cells)
+        print(f"{args.mesh}: {mesh.hexes.shape[0]} hexahedra" + (f", {n_other} other 3-D cells" if n_other else "")
+              + f", {mesh.points.shape[0]} points")
         if orient == "left-handed":
             print("orientation: left-handed file, hexes flipped (--fix-orientation)")
         print(result.summary())
         if fidelity is not None:
             print(f"boundary          Hausdorff max {fidelity['hausdorff_max']:.6g} "
                   f"({100 * fidelity['hausdorff_max_relative']:.4g}% of the bbox diagonal), mean "
-                  f"{fidelity['hausdorff_mean']:.6g}; self-intersecting boundary quads "
+                  f"{fidelity['hausdorff_mean']:.6g}; self-intersecting boundary faces "
                   f"{fidelity['self_intersecting_before']} -> {fidelity['self_intersecting_after']}")
-        print(f"wrote {args.output}" + (f" and {args.plot}" if args.plot else ""))
+        print(f"wrote {args.output}" + "".join(f" and {x}" for x in (args.plot, args.histogram) if x))
         for w in stats["warnings"]:
             sys.stderr.write(f"hexsos: warning: {w}\n")
-    return 0 if (result.success and file_certified) else 1
+    return 0 if (result.success and file_certified and target_ok) else 1
 
 
 def _jsonable(x):
@@ -229,36 +295,18 @@ def _jsonable(x):
     raise TypeError(f"not JSON serializable: {type(x).__name__}")
 
 
-def plot_history(history, path, *, title: str | None = None) -> str:
-    """Write the convergence plot (the paper's Figure 11) as a PNG, atomically; returns the path.
-
-    Hexes not proven valid per outer iteration on the left y-axis, the smallest min det J over the mesh on
-    the right y-axis. Needs matplotlib (extra ``viz``); uses the Agg backend, no display.
-    """
+def _figure():
     try:
         from matplotlib.backends.backend_agg import FigureCanvasAgg  # no pyplot: no global backend switch
         from matplotlib.figure import Figure
     except ImportError as exc:
-        raise DependencyError("--plot needs matplotlib: pip install 'hexsos[viz]'") from exc
-    it = [h["iteration"] for h in history]
-    bad = [h["invalid"] + h.get("undecided", 0) for h in history]
-    md = [h["min_det"] for h in history]
+        raise DependencyError("--plot / --histogram need matplotlib: pip install 'hexsos[viz]'") from exc
     fig = Figure(figsize=(6.4, 4.0), dpi=120)
     FigureCanvasAgg(fig)
-    ax = fig.add_subplot(1, 1, 1)
-    ax.plot(it, bad, "-o", color="tab:blue", markersize=3)
-    ax.set_xlabel("outer iteration (Algorithm 2)")
-    ax.set_ylabel("hexes not proven valid", color="tab:blue")
-    ax.tick_params(axis="y", labelcolor="tab:blue")
-    ax.set_ylim(bottom=0)
-    ax2 = ax.twinx()
-    ax2.plot(it, md, "-s", color="tab:red", markersize=3)
-    ax2.axhline(0.0, color="tab:red", linewidth=0.6, linestyle=":")
-    ax2.set_ylabel("min det J over the mesh", color="tab:red")
-    ax2.tick_params(axis="y", labelcolor="tab:red")
-    ax.set_title(f"hexsos repair{': ' + title if title else ''}")
-    ax.grid(alpha=0.3)
-    fig.tight_layout()
+    return fig
+
+
+def _save(fig, path):
     directory = os.path.dirname(os.path.abspath(path))
     if not os.path.isdir(directory):
         raise MeshWriteError(f"{path}: cannot write the plot, the directory {directory} does not exist")
@@ -275,3 +323,56 @@ def plot_history(history, path, *, title: str | None = None) -> str:
             pass
         raise
     return path
+
+
+def plot_history(history, path, *, title: str | None = None) -> str:
+    """Write the convergence plot (the paper's Figure 11, plus the scaled Jacobian) as a PNG, atomically.
+
+    Cells not proven valid per step on the left y-axis; the smallest min det J over the mesh and, when the
+    history has it, the smallest scaled Jacobian on the right. Needs matplotlib (extra ``viz``); Agg backend.
+    """
+    it = [h["iteration"] for h in history]
+    bad = [h["invalid"] + h.get("undecided", 0) + h.get("other_invalid", 0) for h in history]
+    md = [h["min_det"] for h in history]
+    fig = _figure()
+    ax = fig.add_subplot(1, 1, 1)
+    ax.plot(it, bad, "-o", color="tab:blue", markersize=3, label="cells not proven valid")
+    ax.set_xlabel("outer step" if "stage" in history[-1] else "outer iteration (Algorithm 2)")
+    ax.set_ylabel("cells not proven valid", color="tab:blue")
+    ax.tick_params(axis="y", labelcolor="tab:blue")
+    ax.set_ylim(bottom=0)
+    ax2 = ax.twinx()
+    ax2.plot(it, md, "-s", color="tab:red", markersize=3, label="min det J")
+    if all("min_sj" in h for h in history):
+        ax2.plot(it, [h["min_sj"] for h in history], "-^", color="tab:green", markersize=3,
+                 label="min scaled Jacobian")
+        ax2.set_ylabel("min det J (red), min scaled Jacobian (green)")
+        ax2.legend(loc="lower right", fontsize=8)
+    else:
+        ax2.set_ylabel("min det J over the mesh", color="tab:red")
+    ax2.axhline(0.0, color="tab:red", linewidth=0.6, linestyle=":")
+    ax2.tick_params(axis="y", labelcolor="tab:red")
+    ax.set_title(f"hexsos repair{': ' + title if title else ''}")
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    return _save(fig, path)
+
+
+def plot_histogram(before, after, path, *, title: str | None = None) -> str:
+    """Write the histogram of the scaled Jacobian per cell before and after the repair as a PNG, atomically."""
+    b = np.asarray(before, dtype=np.float64)
+    a = np.asarray(after, dtype=np.float64)
+    b, a = b[np.isfinite(b)], a[np.isfinite(a)]
+    fig = _figure()
+    ax = fig.add_subplot(1, 1, 1)
+    bins = np.linspace(min(-1.0, float(b.min()) if b.size else -1.0), 1.0, 81)
+    ax.hist(b, bins=bins, alpha=0.55, color="tab:red", label=f"before (min {b.min():.3f})" if b.size else "before")
+    ax.hist(a, bins=bins, alpha=0.55, color="tab:blue", label=f"after (min {a.min():.3f})" if a.size else "after")
+    ax.set_yscale("log")
+    ax.set_xlabel("scaled Jacobian (Verdict, corners)")
+    ax.set_ylabel("cells")
+    ax.axvline(0.0, color="k", linewidth=0.6, linestyle=":")
+    ax.legend(loc="upper left", fontsize=8)
+    ax.set_title(f"hexsos repair{': ' + title if title else ''}")
+    fig.tight_layout()
+    return _save(fig, path)

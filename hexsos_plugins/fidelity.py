@@ -43,15 +43,19 @@ def boundary_quads(hexes) -> np.ndarray:
     return faces[counts[inv.ravel()] == 1]
 
 
-def _surface(points, quads):
-    """Vertices (only those on the boundary) and triangles of the quads split along the diagonal 0-2."""
-    used, local = np.unique(quads.ravel(), return_inverse=True)
-    q = local.reshape(-1, 4)
-    tris = np.concatenate([q[:, [0, 1, 2]], q[:, [0, 2, 3]]])
-    return np.ascontiguousarray(points[used], dtype=np.float64), np.ascontiguousarray(tris, dtype=np.int32)
+def _surface(points, quads, tris=None):
+    """Vertices (only those on the boundary) and triangles: the quads split along the diagonal 0-2 (quad k
+    gives triangles k and Q + k), then the boundary triangles."""
+    tris = np.zeros((0, 3), dtype=np.int64) if tris is None else tris
+    used, local = np.unique(np.concatenate([quads.ravel(), tris.ravel()]), return_inverse=True)
+    local = local.ravel()
+    q = local[:quads.size].reshape(-1, 4)
+    t = local[quads.size:].reshape(-1, 3)
+    out = np.concatenate([q[:, [0, 1, 2]], q[:, [0, 2, 3]], t])
+    return np.ascontiguousarray(points[used], dtype=np.float64), np.ascontiguousarray(out, dtype=np.int32)
 
 
-def boundary_fidelity(points_before, points_after, hexes, *, samples_per_face: int = 10) -> dict:
+def boundary_fidelity(points_before, points_after, hexes, *, cells=None, samples_per_face: int = 10) -> dict:
     """Hausdorff distance between the boundary surfaces before and after, and their self-intersections.
 
     Parameters
@@ -59,6 +63,8 @@ def boundary_fidelity(points_before, points_after, hexes, *, samples_per_face: i
     points_before, points_after : array_like, shape (N, 3)
         The same mesh's coordinates before and after repair.
     hexes : array_like of int, shape (M, 8), VTK node order
+    cells : list of (cell type, connectivity), optional, keyword-only
+        The mesh's other 3-D cells (VTK order): their faces are part of the boundary surface (mixed meshes).
     samples_per_face : int, keyword-only
         Sample points per triangle for the Hausdorff distance (plus the vertices and edges). Default 10.
 
@@ -82,18 +88,24 @@ def boundary_fidelity(points_before, points_after, hexes, *, samples_per_face: i
     if A.ndim != 2 or A.shape[1] != 3 or A.shape != B.shape:
         raise InvalidInputError(f"points_before and points_after: expected two arrays of the same shape (N, 3), "
                                 f"found {A.shape} and {B.shape}")
-    quads = boundary_quads(hexes)
-    if quads.size and quads.max() >= A.shape[0]:
-        raise InvalidInputError(f"hexes: node index {int(quads.max())} out of range ({A.shape[0]} points)")
+    if cells:
+        from .boundary import boundary_faces
+
+        tris, quads = boundary_faces([("hexahedron", np.asarray(hexes, dtype=np.int64))] + list(cells))
+    else:
+        tris, quads = np.zeros((0, 3), dtype=np.int64), boundary_quads(hexes)
+    top = max(int(quads.max()) if quads.size else -1, int(tris.max()) if tris.size else -1)
+    if top >= A.shape[0]:
+        raise InvalidInputError(f"hexes: node index {top} out of range ({A.shape[0]} points)")
     ml = _pymeshlab()
-    if quads.shape[0] == 0:
+    if quads.shape[0] + tris.shape[0] == 0:
         zero = {"max": 0.0, "mean": 0.0, "samples": 0}
         return {"hausdorff_max": 0.0, "hausdorff_mean": 0.0, "hausdorff_max_relative": 0.0,
                 "hausdorff_mean_relative": 0.0, "bbox_diagonal": 0.0, "hausdorff_forward": zero,
                 "hausdorff_backward": zero, "self_intersecting_before": 0, "self_intersecting_after": 0,
                 "boundary_quads": 0, "boundary_vertices_moved": 0}
-    va, tri = _surface(A, quads)
-    vb, _ = _surface(B, quads)
+    va, tri = _surface(A, quads, tris)
+    vb, _ = _surface(B, quads, tris)
     diag = float(np.linalg.norm(va.max(axis=0) - va.min(axis=0)))
     ms = ml.MeshSet()
     ms.add_mesh(ml.Mesh(vertex_matrix=va, face_matrix=tri), "before")
@@ -109,7 +121,7 @@ def boundary_fidelity(points_before, points_after, hexes, *, samples_per_face: i
         ms.set_current_mesh(mesh_id)
         ms.compute_selection_by_self_intersections_per_face()
         sel = ms.current_mesh().face_selection_array()
-        return int((sel[:nq] | sel[nq:]).sum())
+        return int((sel[:nq] | sel[nq:2 * nq]).sum() + sel[2 * nq:].sum())
 
     before, after = self_intersecting(0), self_intersecting(1)
     hmax = float(max(fwd["max"], bwd["max"]))
@@ -128,6 +140,7 @@ def boundary_fidelity(points_before, points_after, hexes, *, samples_per_face: i
         "self_intersecting_before": before,
         "self_intersecting_after": after,
         "boundary_quads": nq,
+        "boundary_triangles": int(tris.shape[0]),
         "boundary_vertices_moved": moved,
     }
 

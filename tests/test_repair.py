@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 import hexsos_plugins as hs
-from hexsos_plugins import meshrepair as rp
+from hexsos_plugins import repair_paper as rp
 from hexsos_plugins.errors import DependencyError, InvalidInputError
 from hexsos_plugins.examples import (demo_mesh, gmsh_mesh, hexes_to_mesh, inside_invalid_hex, random_hexes,
                                      structured_grid, twisted_hex, unit_cube)
@@ -90,7 +90,7 @@ def test_single_hex_shape_and_valid_hex_unchanged():
     assert _status(Y[None])[0] == 1
     # a flat hex (det J == 0 everywhere: undecided) has no gradient to follow at first; it is repaired too
     P, H = hexes_to_mesh(np.stack([cube * [1, 1, 0], cube]))
-    r = rp.repair(P, H)
+    r = rp.repair_paper(P, H)
     assert r.stats["undecided_before"] == 1 and r.success and (hs.check(r.points, H).status == 1).all()
     assert np.array_equal(r.points[8:], P[8:])  # the valid hex beside it (no shared vertex) never moved
 
@@ -103,9 +103,9 @@ def test_margin_must_be_positive_and_shapes_checked():
         rp.repair_hex(np.zeros((7, 3)))
     P, H = hexes_to_mesh(inside_invalid_hex())
     with pytest.raises(InvalidInputError, match="rho"):
-        rp.repair(P, H, rho=0)
+        rp.repair_paper(P, H, rho=0)
     with pytest.raises(InvalidInputError, match="anchor"):
-        rp.repair(P, H, anchor="nowhere")
+        rp.repair_paper(P, H, anchor="nowhere")
 
 
 def test_projection_is_feasible_and_matches_a_generic_solver():
@@ -153,7 +153,7 @@ def test_demo_mesh_repaired_certified_and_local(demo):
     fp = _fingerprint(P, H)
     r0 = hs.check(P, H)
     assert (r0.status == 0).sum() >= 3 and r0.invalid_inside_only.any()
-    r = rp.repair(P, H)
+    r = rp.repair_paper(P, H)
     assert _fingerprint(P, H) == fp  # inputs not mutated
     assert r.points is not P and r.points.shape == P.shape
     assert r.success, r.message
@@ -185,7 +185,7 @@ def test_perturbed_gmsh_mesh_all_proven_valid_connectivity_unchanged():
     r0 = hs.check(P, H)
     assert (r0.status != 1).sum() >= 10
     seen = []
-    r = rp.repair(P, H, progress=lambda d, t: seen.append((d, t)), callback=lambda e, V: None)
+    r = rp.repair_paper(P, H, progress=lambda d, t: seen.append((d, t)), callback=lambda e, V: None)
     assert r.success, r.message
     assert (hs.check(r.points, H).status == 1).all()
     assert np.array_equal(H, H_copy)
@@ -202,7 +202,7 @@ def test_bunny_45_invalid_before_0_after_certified(bunny_path):
     mesh = read(bunny_path)
     r0 = hs.check(mesh.points, mesh.hexes)
     assert int((r0.status == 0).sum()) == 45
-    r = rp.repair(mesh.points, mesh.hexes)
+    r = rp.repair_paper(mesh.points, mesh.hexes)
     assert r.success and r.stats["invalid_before"] == 45 and r.stats["invalid_after"] == 0
     assert (hs.check(r.points, mesh.hexes).status == 1).all()
     assert r.stats["seconds"] < 60  # 0.2-0.3 s measured; generous on a shared machine
@@ -213,10 +213,10 @@ def test_max_iter_reached_returns_best_mesh_and_says_so():
     P, H = structured_grid(2)
     P = P.copy()
     P[0] = [0.8, 0.8, 0.8]
-    r = rp.repair(P, H, max_iter=0)
+    r = rp.repair_paper(P, H, max_iter=0)
     assert not r.success and "max_iter" in r.message
     assert np.array_equal(r.points, P) and r.stats["outer_iterations"] == 0
-    r = rp.repair(P, H, max_iter=5)
+    r = rp.repair_paper(P, H, max_iter=5)
     assert not r.success and r.stats["outer_iterations"] == 5
     # the best mesh seen: no more hexes not proven valid than any iteration recorded
     bad = [h["invalid"] + h["undecided"] for h in r.history]
@@ -228,7 +228,7 @@ def test_max_iter_reached_returns_best_mesh_and_says_so():
 
 def test_pinned_boundary_does_not_move_at_all(demo):
     P, H, info = demo
-    r = rp.repair(P, H, pin_boundary=True)
+    r = rp.repair_paper(P, H, pin_boundary=True)
     assert r.success, r.message
     assert (hs.check(r.points, H).status == 1).all()
     b = rp.boundary_vertex_mask(H, len(P))
@@ -241,13 +241,13 @@ def test_pinned_boundary_does_not_move_at_all(demo):
 
 def test_pinned_repair_that_cannot_succeed_says_why():
     P, H = hexes_to_mesh(inside_invalid_hex())  # one hex: every vertex is on the boundary
-    r = rp.repair(P, H, pin_boundary=True)
+    r = rp.repair_paper(P, H, pin_boundary=True)
     assert not r.success and "pin" in r.message and np.array_equal(r.points, P)
     # a hex with 7 of 8 vertices on the boundary of a 2x2x2 grid, its corner pushed through the mesh
     P, H = structured_grid(2)
     P = P.copy()
     P[0] = [0.8, 0.8, 0.8]
-    r = rp.repair(P, H, pin_boundary=True)
+    r = rp.repair_paper(P, H, pin_boundary=True)
     assert not r.success and "pin" in r.message
     b = rp.boundary_vertex_mask(H, len(P))
     assert np.array_equal(r.points[b], P[b])
@@ -317,7 +317,7 @@ def test_cli_repair_end_to_end(tmp_path, demo, capsys):
     m = _write_input(str(src), P, H)
     raw = src.read_bytes()
     out, png = tmp_path / "out.vtu", tmp_path / "conv.png"
-    rc = main(["repair", str(src), "-o", str(out), "--json", "--plot", str(png), "--no-progress"])
+    rc = main(["repair", str(src), "-o", str(out), "--json", "--plot", str(png), "--no-progress", "--method", "paper"])
     stdout = capsys.readouterr().out
     assert rc == 0
     assert src.read_bytes() == raw  # input untouched
@@ -354,7 +354,7 @@ def test_cli_repair_not_successful_exit_1_and_output_written(tmp_path, capsys):
     meshio.write(str(src), meshio.Mesh(P, [("hexahedron", H)]), binary=False)
     rc = main(["repair", str(src), "-o", str(out), "--max-iter", "2", "--no-fidelity"])
     text = capsys.readouterr().out
-    assert rc == 1 and out.exists() and "NOT all hexes proven valid" in text
+    assert rc == 1 and out.exists() and "NOT every cell proven valid" in text
     # the input as output is refused
     rc = main(["repair", str(src), "-o", str(src)])
     assert rc == 2 and "input" in capsys.readouterr().err
@@ -422,6 +422,6 @@ def test_unwritable_output_fails_before_the_repair(tmp_path, capsys, monkeypatch
     src = tmp_path / "tangle.vtu"
     meshio.write(src, meshio.Mesh(P, [("hexahedron", H)]))
     calls = []
-    monkeypatch.setattr("hexsos_plugins.meshrepair._repair", lambda *a, **k: calls.append(1))
+    monkeypatch.setattr("hexsos_plugins.meshrepair._Optimize.run", lambda *a, **k: calls.append(1))
     assert cli.main(["repair", str(src), "-o", str(tmp_path / "missing" / "out.vtu")]) == 2
     assert "does not exist" in capsys.readouterr().err and calls == []  # refused before any repair work
