@@ -24,7 +24,8 @@ from .errors import (
 )
 from .io import read, write
 from .mesh import HexMesh
-from .meshrepair import RepairResult, repair, repair_hex
+from .meshrepair import RepairResult, repair, repair_hex, repair_paper
+from .quality import scaled_jacobian
 from .sos import RELAXATIONS
 
 __all__ = [
@@ -36,6 +37,8 @@ __all__ = [
     "HexMesh",
     "repair",
     "repair_hex",
+    "repair_paper",
+    "scaled_jacobian",
     "RepairResult",
     "METHOD_NAMES",
     "STATUS_NAMES",
