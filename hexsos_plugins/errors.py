@@ -11,6 +11,7 @@ __all__ = [
     "UnsupportedFormatError",
     "MeshFormatError",
     "NoHexahedraError",
+    "NoCellsError",
     "InvalidInputError",
     "LeftHandedMeshError",
     "MeshWriteError",
@@ -38,6 +39,10 @@ class MeshFormatError(MeshReadError):
 
 class NoHexahedraError(HexsosError, ValueError):
     """The mesh holds no hexahedra: there is nothing to check."""
+
+
+class NoCellsError(NoHexahedraError):
+    """The mesh holds no 3-D cell of a type hexsos checks (a NoHexahedraError, for the callers that catch that)."""
 
 
 class InvalidInputError(HexsosError, ValueError):

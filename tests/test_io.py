@@ -260,7 +260,7 @@ def test_voxel_source_is_written_as_hexahedra(tmp_path):
     assert hio.write(hm, tmp_path / "from_hexmesh.vtu") == []  # to_meshio already wrote hexahedra
 
 
-def test_vtu_cells_meshio_would_skip_are_an_error_not_a_silent_loss(tmp_path):
+def test_vtu_voxels_are_read_by_vtk_and_meshio_refuses_them(tmp_path, monkeypatch):
     path = tmp_path / "voxel.vtu"
     with contextlib.redirect_stderr(io.StringIO()):
         meshio.write(str(path), meshio.Mesh(CUBE, [("hexahedron", [list(range(8))]), ("tetra", [[0, 1, 3, 4]])]),
@@ -268,9 +268,15 @@ def test_vtu_cells_meshio_would_skip_are_an_error_not_a_silent_loss(tmp_path):
     text = path.read_text()
     types = re.search(r'(Name="types"[^>]*>)\s*12\s', text)
     path.write_text(text[: types.end(1)] + "\n11\n" + text[types.end():])
+    # VTK's reader keeps the voxel (the same nodes, now in voxel order: a twisted hexahedron as VTK order)
+    hm = read_checked(path)
+    assert hm.reader == "vtk" and [b.type for b in hm.source.cells] == ["voxel", "tetra"]
+    assert hm.hexes.tolist() == [np.arange(8)[VOXEL_TO_VTK].tolist()] and hm.voxel_rows.tolist() == [True]
+    # meshio alone would skip the voxel: that is an error, not a silent loss
+    monkeypatch.setattr("hexsos_plugins.readers.vtk_api._AVAILABLE", False)
     with pytest.raises(MeshFormatError, match="type 11"):
         read_checked(path)
-    # negative case: the unmodified file reads
+    # negative case: the unmodified file reads through meshio too
     path.write_text(text)
     assert read_checked(path).n_hexes == 1
 
@@ -308,8 +314,8 @@ def test_vtk_51_hexahedra_typed_as_tetra_are_not_silently_cut(tmp_path):
     tets = tmp_path / "tets_v51.vtk"
     tets.write_text(text.replace("CELLS 3 12\nOFFSETS vtktypeint64\n0 8 12", "CELLS 3 8\nOFFSETS vtktypeint64\n0 4 8")
                     .replace("0 1 2 3 4 5 6 7 0 1 3 4", "4 5 6 7 0 1 3 4"))
-    with pytest.raises(NoHexahedraError, match="2 tetra"):
-        read_checked(tets)
+    hm = read_checked(tets)
+    assert hm.n_hexes == 0 and hm.cells[0][0] == "tetra" and hm.cells[0][1].tolist() == [[4, 5, 6, 7], [0, 1, 3, 4]]
 
 
 def test_vtk_51_written_by_meshio_is_read(tmp_path):
@@ -561,8 +567,11 @@ BAD_INPUTS = [
     ("nan.vtk", vtk_ascii().replace("1 1 1", "nan 1 1"), InvalidInputError, ["point 6", "finite"]),
     ("range.vtk", vtk_ascii().replace("8 0 1 2 3 4 5 6 7", "8 0 1 2 3 4 5 6 99"), InvalidInputError,
      ["point 99", "8 points"]),
-    ("tets.vtk", vtk_ascii().replace("CELLS 2 14\n8 0 1 2 3 4 5 6 7\n", "CELLS 2 10\n4 0 1 2 4\n")
-     .replace("CELL_TYPES 2\n12", "CELL_TYPES 2\n10"), NoHexahedraError, ["2 tetra"]),
+    ("pyramid13.vtk", vtk_ascii().replace("CELLS 2 14\n8 0 1 2 3 4 5 6 7\n4 0 1 3 4",
+                                           "CELLS 1 14\n13 0 1 2 3 4 5 6 7 0 1 2 3 4")
+     .replace("CELL_TYPES 2\n12\n10", "CELL_TYPES 1\n27").replace("CELL_DATA 2\nSCALARS material int 1\n"
+                                                                 "LOOKUP_TABLE default\n7 8\n", ""),
+     NoHexahedraError, ["1 pyramid13", "not checked"]),
     ("quads.vtk", vtk_ascii().replace("CELLS 2 14\n8 0 1 2 3 4 5 6 7\n4 0 1 3 4", "CELLS 2 10\n4 0 1 2 3\n4 4 5 6 7")
      .replace("CELL_TYPES 2\n12\n10", "CELL_TYPES 2\n9\n9"), NoHexahedraError, ["2 quad"]),
 ]
@@ -580,7 +589,11 @@ def test_bad_input_raises_a_typed_error(tmp_path, name, content, error, words):
 
 
 def test_bad_cases_differ_from_good_ones(tmp_path):
-    """Negative control of the table above: the unmodified texts read fine."""
+    """Negative control of the table above: the unmodified texts read fine, and so does a tetrahedra-only file."""
+    tets = vtk_ascii().replace("CELLS 2 14\n8 0 1 2 3 4 5 6 7\n", "CELLS 2 10\n4 0 1 2 4\n").replace(
+        "CELL_TYPES 2\n12", "CELL_TYPES 2\n10")
+    m = read_checked(_write(tmp_path, "tets.vtk", tets))
+    assert m.n_hexes == 0 and m.n_cells == 2 and m.counts_by_type() == {"tetra": 2}
     assert read_checked(_write(tmp_path, "good.vtk", vtk_ascii())).n_hexes == 1
     assert read_checked(_write(tmp_path, "good_bin.vtk", vtk_binary())).n_hexes == 1
     assert read_checked(_write(tmp_path, "good.mesh", medit_text())).n_hexes == 1

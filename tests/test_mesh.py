@@ -13,9 +13,9 @@ import numpy as np
 import pytest
 
 from hexsos_plugins import mesh as mesh_module
-from hexsos_plugins.errors import InvalidInputError, NoHexahedraError
+from hexsos_plugins.errors import InvalidInputError, NoCellsError, NoHexahedraError
 from hexsos_plugins.hexahedron import det_at
-from hexsos_plugins.mesh import FLIP, INT_FILL, HexMesh
+from hexsos_plugins.mesh import FLIP, INT_FILL, MIRROR, HexMesh
 
 
 # ---------------------------------------------------------------------------------------------- fixtures
@@ -160,20 +160,29 @@ def test_from_meshio_collects_hex_blocks_in_order_and_keeps_the_rest():
 @pytest.mark.parametrize(
     "cells, words",
     [
-        ([("tetra", np.array([[0, 1, 2, 3]] * 120)), ("triangle", np.array([[0, 1, 2]] * 30))],
-         ["120 tetra", "30 triangle"]),
+        ([("triangle", np.array([[0, 1, 2]] * 30)), ("line", np.array([[0, 1]] * 3))], ["30 triangle", "3 line"]),
         ([("quad", np.array([[0, 1, 2, 3]] * 4))], ["4 quad"]),
-        ([("hexahedron27", np.zeros((2, 27), dtype=int))], ["2 hexahedron27", "higher-order"]),
-        ([("hexahedron", np.zeros((0, 8), dtype=int)), ("tetra", np.array([[0, 1, 2, 3]]))], ["1 tetra"]),
+        ([("pyramid14", np.zeros((2, 14), dtype=int))], ["2 pyramid14", "not checked"]),
+        ([("hexahedron", np.zeros((0, 8), dtype=int)), ("triangle", np.array([[0, 1, 2]]))], ["1 triangle"]),
     ],
 )
-def test_from_meshio_without_hexahedra(cells, words):
+def test_from_meshio_without_checkable_cells(cells, words):
     pts, _ = grid(1)
     with pytest.raises(NoHexahedraError) as info:
         HexMesh.from_meshio(meshio.Mesh(pts, cells), path="t.vtk")
+    assert isinstance(info.value, NoCellsError)
     for w in words:
         assert w in str(info.value)
     assert "t.vtk" in str(info.value)
+
+
+def test_a_mesh_without_hexahedra_is_a_mesh():
+    """Tetrahedra alone (or quadratic hexahedra alone) are checkable cells now: no error, no hexes."""
+    pts, _ = grid(1)
+    m = HexMesh.from_meshio(meshio.Mesh(pts, [("tetra", np.array([[0, 1, 3, 4]] * 3)),
+                                              ("triangle", np.array([[0, 1, 2]]))]))
+    assert m.n_hexes == 0 and m.hexes.shape == (0, 8) and m.n_cells == 3 and m.counts_by_type() == {"tetra": 3}
+    assert m.cells[0][0] == "tetra" and m.cell_types.tolist() == [0, 0, 0]
 
 
 def test_from_meshio_names_the_offending_cell_and_point():
@@ -249,7 +258,10 @@ def test_flipped_fixes_a_left_handed_mesh_and_leaves_the_original_alone():
     # the copy's source has its hex blocks flipped, the other blocks as they were
     assert np.array_equal(fixed.source.cells[0].data, fixed.hexes[:3])
     assert np.array_equal(fixed.source.cells[3].data, fixed.hexes[3:])
-    assert np.array_equal(fixed.source.cells[4].data, src.cells[4].data)
+    # every checked type is mirrored with its own permutation (hexahedron20 and wedge here), 2-D cells are not
+    assert np.array_equal(fixed.source.cells[4].data, src.cells[4].data[:, MIRROR["hexahedron20"]])
+    assert np.array_equal(fixed.source.cells[5].data, src.cells[5].data[:, [0, 2, 1, 3, 5, 4]])
+    assert np.array_equal(fixed.source.cells[2].data, src.cells[2].data)
     assert fixed.source is not src
     assert np.array_equal(fixed.flipped().hexes, hm.hexes)
 

@@ -1,0 +1,193 @@
+"""What every reader (and the writers) share: format names and extensions, meshio's output captured, the
+tolerant readers' error type, and the node-order corrections of meshio's format modules.
+
+Node orders: hexsos holds every cell block in VTK's node order (the element registry,
+:mod:`hexsos_plugins.elements`), which is also meshio's own convention for every type. meshio 5.3.5 deviates
+in two places, measured against VTK 9.7's own shape functions and Gmsh 4.15's reference elements:
+
+* its VTK readers and writers (``vtk``, ``vtu``) swap the linear wedge's nodes ``(0, 2, 1, 3, 5, 4)``, following
+  ``vtkWedge``'s documentation rather than its code: VTK's shape functions, ``vtkMeshQuality`` (volume) and
+  ``vtkCellValidator`` all call the wedge whose nodes sit at VTK's parametric coordinates valid, and its
+  mirror invalid. So meshio mirrors every wedge it reads from or writes to a VTK file; hexsos undoes it on
+  reading (:func:`fix_read_order`) and redoes it before meshio writes (:func:`fix_write_order`), so the
+  file's own node order is what the kernel sees and what is written.
+* its Gmsh reader and writer have no permutation for ``wedge18`` (Gmsh's 18-node prism numbers its edge and
+  face nodes differently from ``vtkBiQuadraticQuadraticWedge``); hexsos applies the registry's
+  ``gmsh_to_vtk`` on reading and its inverse before writing. (``tetra10``, ``wedge15``, ``hexahedron20`` and
+  ``hexahedron27`` meshio permutes as the registry does.)
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io as _stdio
+import re
+import warnings as _warnings
+from pathlib import Path
+
+import meshio
+import numpy as np
+
+from ..elements import ELEMENTS
+
+_FORMAT_NAMES = {
+    "vtk": "legacy VTK",
+    "vtu": "VTK XML (vtu)",
+    "gmsh": "Gmsh MSH",
+    "medit": "Medit",
+    "ansys": "ANSYS msh",
+    "abaqus": "Abaqus",
+    "exodus": "Exodus",
+    "xdmf": "XDMF",
+}
+_READ_ALIASES = {"msh": "gmsh", "gmsh22": "gmsh", "gmsh4": "gmsh", "vtk42": "vtk", "vtk51": "vtk", "mesh": "medit"}
+_WRITE_ALIASES = {
+    "msh": "gmsh22",
+    "gmsh": "gmsh22",
+    "gmsh22": "gmsh22",
+    "vtk": "vtk42",
+    "vtk42": "vtk42",
+    "vtk51": "vtk42",
+    "mesh": "medit",
+}
+_WRITE_BY_EXT = {".msh": "gmsh22", ".vtk": "vtk42", ".mesh": "medit", ".meshb": "medit", ".vtu": "vtu"}
+_NO_WRITE = {"tetgen": "TetGen writes two files (.node and .ele), which cannot be written atomically"}
+_COMMON_EXTS = [".vtu", ".vtk", ".msh", ".mesh", ".meshb", ".xdmf", ".inp", ".med", ".exo"]
+
+
+def _name(fmt: str) -> str:
+    return _FORMAT_NAMES.get(fmt, fmt)
+
+
+def _reader_formats() -> set:
+    return {f for fmts in meshio.extension_to_filetypes.values() for f in fmts}
+
+
+def _writer_formats() -> set:
+    try:
+        from meshio._helpers import _writer_map  # private, but the only list of writers meshio has
+
+        return set(_writer_map) - set(_NO_WRITE)
+    except Exception:  # pragma: no cover - a later meshio
+        return _reader_formats() - set(_NO_WRITE)
+
+
+def _ext_formats(path: Path) -> tuple[str, list]:
+    """The longest known multi-suffix of path ('.vol.gz' before '.gz') and its meshio formats."""
+    suffixes = [s.lower() for s in path.suffixes]
+    for k in range(len(suffixes)):
+        ext = "".join(suffixes[k:])
+        if ext in meshio.extension_to_filetypes:
+            return ext, list(meshio.extension_to_filetypes[ext])
+    return (path.suffix.lower(), [])
+
+
+def supported_extensions(*, write: bool = False) -> list:
+    """File extensions hexsos can read (or, with ``write=True``, write), most common first."""
+    if write:
+        writable = _writer_formats()
+        exts = [e for e, fmts in meshio.extension_to_filetypes.items()
+                if _WRITE_BY_EXT.get(e, fmts[0]) in writable]
+    else:
+        exts = list(meshio.extension_to_filetypes)
+    common = [e for e in _COMMON_EXTS if e in exts]
+    return common + sorted(e for e in exts if e not in common)
+
+
+def _few_exts(write=False) -> str:
+    exts = supported_extensions(write=write)
+    return ", ".join(exts[:8]) + (f" (and {len(exts) - 8} more)" if len(exts) > 8 else "")
+
+
+@contextlib.contextmanager
+def _quiet():
+    """Capture what meshio prints (it prints errors and warnings) and silence Python warnings."""
+    out, err = _stdio.StringIO(), _stdio.StringIO()
+    log = []
+    with _warnings.catch_warnings():
+        _warnings.simplefilter("ignore")
+        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+            try:
+                yield log
+            finally:
+                log.extend(_split_messages(out.getvalue() + "\n" + err.getvalue()))
+
+
+def _split_messages(text: str) -> list:
+    """meshio's rich console output, one message per 'Warning:' / 'Info:' / 'Error:', lines joined."""
+    text = " ".join(text.split())
+    if not text:
+        return []
+    parts = re.split(r"(?=\b(?:Warning|Info|Error):)", text)
+    return [p.strip() for p in parts if p.strip()]
+
+
+class _ParseError(Exception):
+    """A tolerant reader's failure; becomes a MeshFormatError with the path and format."""
+
+
+def _short(msg: str, limit: int = 240) -> str:
+    msg = " ".join(str(msg).split())
+    return msg if len(msg) <= limit else msg[: limit - 3] + "..."
+
+
+def _make_block(cell_type: str, data, dim: int | None = None):
+    """A meshio CellBlock of any type name (meshio's constructor rejects e.g. 'voxel')."""
+    block = meshio.CellBlock("vertex", np.zeros((0, 1), dtype=np.int64))
+    block.type = cell_type
+    block.data = np.asarray(data)
+    block.dim = dim if dim is not None else _DIMS.get(cell_type, 3)
+    return block
+
+
+_DIMS = {"vertex": 0, "line": 1, "line3": 1, "line4": 1, "triangle": 2, "quad": 2, "polygon": 2, "triangle6": 2,
+         "triangle7": 2, "quad8": 2, "quad9": 2, "quad6": 2}
+
+
+def _meshio_read(path: Path, fmt: str):
+    """meshio.read with its printing captured; returns (mesh, messages) or raises _ParseError. The cell blocks
+    are in meshio's order for ``fmt``: pass the mesh through :func:`fix_read_order`."""
+    try:
+        with _quiet() as log:
+            mesh = meshio.read(str(path), file_format=fmt)
+    except (Exception, SystemExit) as exc:
+        said = [re.sub(r"^(Warning|Error):\s*", "", m) for m in log if not m.startswith("Info")]
+        text = str(exc) if not isinstance(exc, SystemExit) else ""
+        reason = "; ".join(x for x in [text] + said if x) or type(exc).__name__
+        raise _ParseError(_short(reason)) from None
+    return mesh, log
+
+
+# ------------------------------------------------------------------------------------------------- node orders
+#: The wedge's mirror, which meshio's VTK readers and writers apply (its own inverse).
+WEDGE_SWAP = np.array([0, 2, 1, 3, 5, 4])
+#: Gmsh's 18-node prism to VTK's (``vtk = gmsh[:, WEDGE18_G2V]``) and back.
+WEDGE18_G2V = np.array(ELEMENTS["wedge18"].gmsh_to_vtk)
+WEDGE18_V2G = np.argsort(WEDGE18_G2V)
+_VTK_FORMATS = ("vtk", "vtu", "vtk42", "vtk51")
+_GMSH_FORMATS = ("gmsh", "gmsh22", "gmsh4", "gmsh41")
+
+
+def _permute(mesh: meshio.Mesh, cell_type: str, perm: np.ndarray) -> None:
+    for block in mesh.cells:
+        if block.type == cell_type and len(block.data):
+            block.data = np.ascontiguousarray(np.asarray(block.data)[:, perm])
+
+
+def fix_read_order(mesh: meshio.Mesh, fmt: str) -> meshio.Mesh:
+    """Blocks of a mesh meshio just read as ``fmt``, in place, in VTK node order (see the module docstring)."""
+    if fmt in _VTK_FORMATS:
+        _permute(mesh, "wedge", WEDGE_SWAP)
+    elif fmt in _GMSH_FORMATS:
+        _permute(mesh, "wedge18", WEDGE18_G2V)
+    return mesh
+
+
+def fix_write_order(mesh: meshio.Mesh, fmt: str) -> meshio.Mesh:
+    """Blocks of a private copy (VTK node order), in place, in the order meshio's ``fmt`` writer expects so that
+    the file comes out in the format's own order."""
+    if fmt in _VTK_FORMATS:
+        _permute(mesh, "wedge", WEDGE_SWAP)
+    elif fmt in _GMSH_FORMATS:
+        _permute(mesh, "wedge18", WEDGE18_V2G)
+    return mesh
