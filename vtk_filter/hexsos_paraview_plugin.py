@@ -17,9 +17,11 @@ it on ``PV_PLUGIN_PATH``. The filters "HexSOS Check" and "HexSOS Repair" appear 
 ``PV_PLUGIN_PATH`` directory as a plugin: that is why the filters live in this file and why
 ``vtk_filter/__init__.py`` only defines lazy attributes (loading it registers nothing and runs no code).
 
-How ParaView's Python finds the kernel and its dependencies (numpy, scipy, clarabel, meshio): inside
-ParaView this file *appends* (never prepends: a virtual environment first on ``sys.path`` makes ParaView load
-PyPI's ``vtkmodules`` and crash) to ``sys.path``, in this order, the directories that exist of
+How ParaView's Python finds the kernel and its dependencies (numpy, scipy, clarabel, meshio). ``hexsos paraview``
+(:mod:`hexsos_plugins.cli_doors`) starts ParaView with this plugin loaded and hands it the ``sys.path`` of the
+Python it runs in: nothing to set. Loaded any other way (by hand in the GUI, ``PV_PLUGIN_PATH``, ``LoadPlugin``
+in a script) this file *appends* (never prepends: a virtual environment first on ``sys.path`` makes ParaView
+load PyPI's ``vtkmodules`` and crash) to ``sys.path``, in this order, the directories that exist of
 
 1. ``HEXSOS_PYTHONPATH`` (``os.pathsep``-separated), e.g. the site-packages of the Python where
    ``pip install hexsos`` ran;
@@ -28,17 +30,22 @@ PyPI's ``vtkmodules`` and crash) to ``sys.path``, in this order, the directories
 3. ``$VIRTUAL_ENV/lib/pythonX.Y/site-packages`` when ParaView runs inside an activated virtual environment
    with ParaView's Python version X.Y;
 4. the directories recorded by ``python -m vtk_filter.hexsos_paraview_plugin --record`` (run with the Python
-   where hexsos is installed) in ``$XDG_CONFIG_HOME/hexsos/paraview-paths.txt`` (default ``~/.config``).
+   where hexsos is installed) in ``$XDG_CONFIG_HOME/hexsos/paraview-paths.txt`` (default ``~/.config``);
+5. the environment in which a ``hexsos`` command last ran with ParaView's Python version X.Y: every ``hexsos``
+   command records its environment (Python version, executable, ``sys.path``) in
+   ``$XDG_CONFIG_HOME/hexsos/environments.json`` (see :func:`recorded_environments`).
 
 ParaView's own numpy, scipy and VTK stay first. The compiled dependencies (clarabel) must be built for
-ParaView's Python version. ``python -m vtk_filter.hexsos_paraview_plugin`` prints the environment lines to
-use. The kernel is imported lazily, on the first execution, so ParaView starts fast and a missing dependency
-is reported as a VTK error that names what to set.
+ParaView's Python version: when the kernel cannot be imported, the error names the Python versions hexsos was
+recorded for and ParaView's. ``python -m vtk_filter.hexsos_paraview_plugin`` (or ``hexsos paraview
+--print-env``) prints the environment lines to use. The kernel is imported lazily, on the first execution, so
+ParaView starts fast and a missing dependency is reported as a VTK error that names what to set.
 
 Debian's ParaView 5.11 on Python 3.11 cannot load any Python plugin (its loader imports
 ``inspect.getargspec``, removed in Python 3.11) unless ``inspect.getargspec = inspect.getfullargspec`` ran
-first: in ``pvpython`` scripts do it before ``LoadPlugin``; for the GUI and ``PV_PLUGIN_PATH`` put
-``vtk_filter/paraview_compat`` (its ``usercustomize.py`` does it) on ``PYTHONPATH``.
+first: ``hexsos paraview`` does it; in ``pvpython`` scripts do it before ``LoadPlugin``; for the GUI started
+by hand and ``PV_PLUGIN_PATH`` put ``vtk_filter/paraview_compat`` (its ``usercustomize.py`` does it) on
+``PYTHONPATH``.
 """
 
 from __future__ import annotations
@@ -90,6 +97,8 @@ __all__ = [
     "VTK_VOXEL",
     "STATUS_NOT_A_HEX",
     "dependency_paths",
+    "recorded_environments",
+    "open_checked",
     "IN_PARAVIEW",
 ]
 
@@ -104,6 +113,8 @@ STATUS_NOT_A_HEX = -2
 
 _HERE = os.path.dirname(os.path.abspath(__file__))
 _RECORD_NAME = os.path.join("hexsos", "paraview-paths.txt")
+#: Written by every ``hexsos`` command (``hexsos_plugins.cli_doors.record_environment``), read here.
+_ENVIRONMENTS_NAME = os.path.join("hexsos", "environments.json")
 
 
 # ----------------------------------------------------------------------------------------------------
@@ -111,9 +122,13 @@ _RECORD_NAME = os.path.join("hexsos", "paraview-paths.txt")
 # ----------------------------------------------------------------------------------------------------
 
 
-def _record_file() -> str:
+def _config_file(name) -> str:
     base = os.environ.get("XDG_CONFIG_HOME") or os.path.join(os.path.expanduser("~"), ".config")
-    return os.path.join(base, _RECORD_NAME)
+    return os.path.join(base, name)
+
+
+def _record_file() -> str:
+    return _config_file(_RECORD_NAME)
 
 
 def _recorded_paths() -> list:
@@ -122,6 +137,43 @@ def _recorded_paths() -> list:
             return [line.strip() for line in fh if line.strip() and not line.lstrip().startswith("#")]
     except OSError:
         return []
+
+
+def _minor(version) -> str:
+    """'3.11' of '3.11.7' (or of '3.11')."""
+    return ".".join(str(version).split(".")[:2])
+
+
+def _this_python() -> str:
+    return f"{sys.version_info[0]}.{sys.version_info[1]}"
+
+
+def recorded_environments() -> list:
+    """The environments ``hexsos`` commands ran in, most recent first, as recorded in
+    ``$XDG_CONFIG_HOME/hexsos/environments.json`` (default ``~/.config``).
+
+    Each is a dict with at least ``python`` (the version, e.g. ``"3.11.7"``), ``executable`` and ``paths``
+    (the directories that Python imports hexsos and its dependencies from). A missing or unreadable file, or
+    entries of another shape, count as nothing recorded.
+    """
+    import json
+
+    try:
+        with open(_config_file(_ENVIRONMENTS_NAME), encoding="utf-8") as fh:
+            data = json.load(fh)
+    except (OSError, ValueError):
+        return []
+    entries = data.get("environments", []) if isinstance(data, dict) else []
+    return [e for e in entries if isinstance(e, dict) and isinstance(e.get("python"), str)
+            and isinstance(e.get("paths"), list) and all(isinstance(p, str) for p in e["paths"])]
+
+
+def _recorded_environment():
+    """The most recent recorded environment with this Python's major.minor version, or None."""
+    for env in recorded_environments():
+        if _minor(env["python"]) == _this_python():
+            return env
+    return None
 
 
 def dependency_paths() -> list:
@@ -134,6 +186,9 @@ def dependency_paths() -> list:
     if venv:
         paths.append(os.path.join(venv, "lib", f"python{sys.version_info[0]}.{sys.version_info[1]}", "site-packages"))
     paths += _recorded_paths()
+    env = _recorded_environment()
+    if env is not None:
+        paths += env["paths"]
     seen, out = set(), []
     for p in paths:
         p = os.path.abspath(os.path.expanduser(p))
@@ -141,6 +196,21 @@ def dependency_paths() -> list:
             seen.add(p)
             out.append(p)
     return out
+
+
+def _version_note() -> str:
+    """What the recorded environments say about Python versions, when none matches this Python ('' if one does)."""
+    envs = recorded_environments()
+    if not envs:
+        return ("no hexsos command has recorded its environment yet (run any 'hexsos' command once, e.g. "
+                "'hexsos demo', with the Python where hexsos is installed)")
+    if _recorded_environment() is not None:
+        return ""
+    others = ", ".join(f"Python {e['python']} ({e.get('executable', '?')})" for e in envs[:3])
+    return (f"hexsos was recorded for {others}, but ParaView runs Python {sys.version.split()[0]}: the compiled "
+            f"dependencies (clarabel) load only in the Python version they were installed for; install hexsos "
+            f"into a Python {_this_python()} environment and run 'hexsos' there once, or start ParaView with "
+            f"'hexsos paraview'")
 
 
 def _append_dependency_paths() -> list:
@@ -171,11 +241,13 @@ def _kernel(*submodules):
         for name in ("scipy.optimize", "clarabel") + tuple(f"hexsos_plugins.{m}" for m in submodules):
             importlib.import_module(name)
     except ImportError as exc:
+        note = _version_note()
         raise _KernelUnavailable(
             f"cannot import the hexsos kernel in this Python {sys.version.split()[0]} ({sys.executable}): "
-            f"{type(exc).__name__}: {exc}. Set HEXSOS_PYTHONPATH to the site-packages of the Python where hexsos "
-            f"is installed (same Python version), or run 'python -m vtk_filter.hexsos_paraview_plugin --record' "
-            f"with that Python; searched: {dependency_paths() or 'nothing'}") from exc
+            f"{type(exc).__name__}: {exc}. " + (note + ". " if note else "")
+            + "Start ParaView with 'hexsos paraview', or set HEXSOS_PYTHONPATH to the site-packages of the Python "
+            f"where hexsos is installed (same Python version); searched: {dependency_paths() or 'nothing'}"
+        ) from exc
     return hexsos_plugins
 
 
@@ -370,6 +442,7 @@ class _HexSOSBase(VTKPythonAlgorithmBase):
         self._method = "auto"
         self._relaxation = "quad2"
         self._result = None
+        self._last_message = None
 
     # --- options ---------------------------------------------------------------------------------
     def _set(self, attr, value):
@@ -394,8 +467,13 @@ class _HexSOSBase(VTKPythonAlgorithmBase):
         """The kernel's result of the last execution (``CheckResult`` / ``RepairResult``), None before or on error."""
         return self._result
 
+    def GetLastMessage(self):
+        """The error or warning text of the last execution (None if there was none)."""
+        return self._last_message
+
     # --- messages (what vtkErrorMacro / vtkWarningMacro do) ----------------------------------------
     def _message(self, text, *, error):
+        self._last_message = text
         event = vtkCommand.ErrorEvent if error else vtkCommand.WarningEvent
         if self.HasObserver(event):
             self.InvokeEvent(event, text)
@@ -422,6 +500,7 @@ class _HexSOSBase(VTKPythonAlgorithmBase):
 
     def RequestData(self, request, inInfo, outInfo):
         self._result = None
+        self._last_message = None
         inp = vtkUnstructuredGrid.GetData(inInfo[0], 0)
         outputs = [self.GetOutputData(outInfo, i) for i in range(self.GetNumberOfOutputPorts())]
         try:
@@ -658,6 +737,138 @@ _register(HexSOSCheckFilter, "HexSOSCheck", "HexSOS Check",
 _register(HexSOSRepairFilter, "HexSOSRepair", "HexSOS Repair",
           "Move the vertices as little as possible until every hexahedron is proven valid.",
           ["Repaired Mesh"])
+
+
+# ----------------------------------------------------------------------------------------------------
+# Inside ParaView: open meshes with "HexSOS Check" applied (what ``hexsos paraview`` shows)
+# ----------------------------------------------------------------------------------------------------
+
+#: How ``open_checked`` colours ``hexsos_status``: value, label, RGB.
+STATUS_COLOURS = (
+    (1, "valid", (0.75, 0.80, 0.90)),
+    (0, "invalid", (0.90, 0.05, 0.05)),
+    (-1, "undecided", (1.00, 0.60, 0.00)),
+    (STATUS_NOT_A_HEX, "not checked", (0.50, 0.50, 0.50)),
+)
+#: The colour of the fold points (x(argmin) of every invalid hex).
+FOLD_COLOUR = (0.0, 0.0, 0.0)
+
+
+class SessionError(RuntimeError):
+    """A mesh could not be opened or checked in ParaView (the message says which and why)."""
+
+
+def _status_counts(grid) -> dict:
+    arr = grid.GetCellData().GetArray("hexsos_status") if grid is not None else None
+    if arr is None:
+        return {}
+    values, counts = np.unique(_to_numpy(arr), return_counts=True)
+    return {int(v): int(c) for v, c in zip(values, counts)}
+
+
+def _colour_by_status(simple, displays, view, counts):
+    """One categorical colour map for ``hexsos_status`` on ``displays``; the legend lists the statuses present,
+    with their number of cells."""
+    lut = simple.GetColorTransferFunction("hexsos_status")
+    lut.InterpretValuesAsCategories = 1
+    present = [(v, label, rgb) for v, label, rgb in STATUS_COLOURS if counts.get(v)]
+    lut.Annotations = [str(x) for v, label, _ in present for x in (v, f"{label} ({counts[v]})")]
+    lut.IndexedColors = [c for _, _, rgb in present for c in rgb]
+    for d in displays:
+        simple.ColorBy(d, ("CELLS", "hexsos_status"))
+        d.LookupTable = lut
+    if displays:
+        displays[0].SetScalarBarVisibility(view, True)
+        bar = simple.GetScalarBar(lut, view)
+        bar.Title = "hexsos_status"
+        bar.ComponentTitle = ""
+    return lut
+
+
+def open_checked(paths, *, names=None, view=None, screenshot=None, size=(1280, 800)) -> dict:
+    """Open each mesh file of ``paths`` in ParaView with "HexSOS Check" applied, and show the result.
+
+    Runs inside ParaView (GUI or ``pvpython``; this plugin loaded). Each mesh is shown translucent and coloured
+    by ``hexsos_status`` (:data:`STATUS_COLOURS`; the legend lists the statuses present, with their counts),
+    its cells not proven valid opaque-ish on top (a Threshold), and the fold points (output port 1:
+    x(argmin) of every invalid hex) as black spheres; the camera looks at everything obliquely. With
+    ``screenshot`` the view is saved there as a PNG of ``size`` pixels (without the orientation axes).
+
+    Returns a dict: ``meshes`` (per file: ``file``, ``cells``, ``valid``, ``invalid``, ``undecided``,
+    ``not_checked``, ``invalid_inside_only``, ``fold_points``), ``screenshot``, ``plugin`` (this file) and
+    ``kernel`` (the ``hexsos_plugins`` package ParaView's Python imported). Raises :class:`SessionError` when
+    ParaView cannot read a file or the check fails (the filter's own message included).
+    """
+    from paraview import simple
+
+    names = list(names) if names is not None else [os.path.basename(p) for p in paths]
+    view = view or simple.GetActiveViewOrCreate("RenderView")
+    report = {"meshes": [], "screenshot": None, "plugin": os.path.abspath(__file__), "kernel": None}
+    displays, total, last = [], {}, None
+    for path, name in zip(paths, names):
+        reader = simple.OpenDataFile(path)
+        if reader is None:
+            raise SessionError(f"{name}: ParaView has no reader for this file")
+        simple.RenameSource(name, reader)
+        check = simple.HexSOSCheck(Input=reader)
+        check.UpdatePipeline()
+        algorithm = check.GetClientSideObject()  # this module's HexSOSCheckFilter (built-in session)
+        result = algorithm.GetResult()
+        if result is None:
+            raise SessionError(f"{name}: HexSOS Check failed: {algorithm.GetLastMessage() or 'no result'}")
+        grid = algorithm.GetOutputDataObject(0)
+        counts = _status_counts(grid)
+        for v, c in counts.items():
+            total[v] = total.get(v, 0) + c
+        folds = algorithm.GetOutputDataObject(1)
+        report["meshes"].append({
+            "file": name, "cells": int(grid.GetNumberOfCells()), "valid": counts.get(1, 0),
+            "invalid": counts.get(0, 0), "undecided": counts.get(-1, 0),
+            "not_checked": counts.get(STATUS_NOT_A_HEX, 0),
+            "invalid_inside_only": int(np.count_nonzero(getattr(result, "invalid_inside_only", ()))),
+            "fold_points": int(folds.GetNumberOfPoints()),
+        })
+
+        shown = simple.Show(check, view)
+        shown.Opacity = 0.3
+        displays.append(shown)
+        if counts.get(0, 0) + counts.get(-1, 0):  # the cells not proven valid, on top
+            bad = simple.Threshold(Input=check)
+            simple.RenameSource(f"{name}: not proven valid", bad)
+            bad.Scalars = ["CELLS", "hexsos_status"]
+            bad.LowerThreshold = -1
+            bad.UpperThreshold = 0
+            if "ThresholdMethod" in bad.ListProperties():  # ParaView >= 5.10
+                bad.ThresholdMethod = "Between"
+            bad_shown = simple.Show(bad, view)
+            bad_shown.Opacity = 0.6
+            displays.append(bad_shown)
+        fold_shown = simple.Show(simple.OutputPort(check, 1), view)
+        fold_shown.ColorArrayName = ["POINTS", ""]  # one solid colour
+        fold_shown.SetRepresentationType("Points")
+        fold_shown.RenderPointsAsSpheres = 1
+        fold_shown.PointSize = 14
+        fold_shown.AmbientColor = list(FOLD_COLOUR)
+        fold_shown.DiffuseColor = list(FOLD_COLOUR)
+        last = check
+    if displays:
+        _colour_by_status(simple, displays, view, total)
+        view.ResetCamera()
+        camera = view.GetActiveCamera()
+        camera.Elevation(35)
+        camera.Azimuth(20)
+        view.ResetCamera()
+        simple.SetActiveSource(last)
+    kernel = sys.modules.get("hexsos_plugins")
+    report["kernel"] = getattr(kernel, "__file__", None)
+    simple.Render(view)
+    if screenshot:  # the mesh and its legend; ParaView's orientation axes (a red X) stay in the window only
+        axes = view.OrientationAxesVisibility
+        view.OrientationAxesVisibility = 0
+        simple.SaveScreenshot(screenshot, view, ImageResolution=list(size))
+        view.OrientationAxesVisibility = axes
+        report["screenshot"] = screenshot
+    return report
 
 
 # ----------------------------------------------------------------------------------------------------
