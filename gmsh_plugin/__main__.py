@@ -1,4 +1,4 @@
-"""``hexsos-gmsh MESH`` / ``python -m gmsh_plugin MESH``: the Gmsh GUI with the hexsos panel.
+"""``hexsos gmsh MESH`` / ``hexsos-gmsh MESH`` / ``python -m gmsh_plugin MESH``: the Gmsh GUI with the hexsos panel.
 
 Opens MESH (any format Gmsh reads: .msh, .vtk, .mesh, .unv, ...) in Gmsh, with the ONELAB panel "hexsos"
 (Check and Repair buttons, parameters, results; see :mod:`gmsh_plugin.panel`).
@@ -21,9 +21,11 @@ import sys
 from hexsos_plugins import __version__
 from hexsos_plugins.errors import HexsosError, MeshReadError, NoHexahedraError
 
-__all__ = ["main", "build_parser"]
+__all__ = ["main", "build_parser", "add_arguments", "run"]
 
 PROG = "hexsos-gmsh"
+DESCRIPTION = ("Open a mesh in the Gmsh GUI with the hexsos panel: check every 8-node hexahedron (exact min det J, "
+               "where it occurs, a proven verdict) and repair the mesh.")
 
 
 class _Parser(argparse.ArgumentParser):
@@ -33,8 +35,13 @@ class _Parser(argparse.ArgumentParser):
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = _Parser(prog=PROG, description="Open a mesh in the Gmsh GUI with the hexsos panel: check every "
-                "8-node hexahedron (exact min det J, where it occurs, a proven verdict) and repair the mesh.")
+    p = _Parser(prog=PROG, description=DESCRIPTION)
+    add_arguments(p)
+    return p
+
+
+def add_arguments(p) -> None:
+    """The options of the Gmsh door, on ``p`` (this module's parser, or ``hexsos gmsh``'s)."""
     p.add_argument("mesh", metavar="MESH", nargs="?",
                    help="a mesh file in any format Gmsh reads (.msh .vtk .mesh .unv ...)")
     p.add_argument("--demo", action="store_true",
@@ -57,7 +64,6 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--exit-after", action="store_true",
                    help="with the GUI: close it once --auto-action has run (and the screenshot is saved)")
     p.add_argument("--version", action="version", version=f"{PROG} (hexsos) {__version__}")
-    return p
 
 
 def _no_display() -> bool:
@@ -168,16 +174,21 @@ def main(argv=None) -> int:
         args = build_parser().parse_args(argv)
     except SystemExit as exc:  # --help, --version, usage errors
         return int(exc.code or 0)
+    return run(args)
+
+
+def run(args, prog: str = PROG) -> int:
+    """Run the Gmsh door with parsed ``args`` (see :func:`add_arguments`); ``prog`` names it in messages."""
     if not args.mesh and not args.demo and (args.nopopup or _no_display()):
-        sys.stderr.write(f"{PROG}: error: no MESH given (and no GUI to open one in)\n")
+        sys.stderr.write(f"{prog}: error: no MESH given (and no GUI to open one in)\n")
         return 2
     if args.mesh and args.demo:
-        sys.stderr.write(f"{PROG}: error: give MESH or --demo, not both\n")
+        sys.stderr.write(f"{prog}: error: give MESH or --demo, not both\n")
         return 2
     try:
         import gmsh
     except ImportError:
-        sys.stderr.write(f"{PROG}: error: Gmsh's Python API is not installed: pip install 'hexsos[gmsh]'\n")
+        sys.stderr.write(f"{prog}: error: Gmsh's Python API is not installed: pip install 'hexsos[gmsh]'\n")
         return 2
     headless = args.nopopup or _no_display()
     own = not gmsh.isInitialized()
@@ -193,22 +204,22 @@ def main(argv=None) -> int:
                 widen_menu()
                 gmsh.fltk.initialize()
             except Exception:
-                sys.stderr.write(f"{PROG}: no display: running the check without the GUI\n")
+                sys.stderr.write(f"{prog}: no display: running the check without the GUI\n")
                 headless = True
         if headless:
             return _headless(gmsh, args, label)
         return _gui(gmsh, args, label)
     except HexsosError as exc:
-        sys.stderr.write(f"{PROG}: error: {' '.join(str(exc).split())}\n")
+        sys.stderr.write(f"{prog}: error: {' '.join(str(exc).split())}\n")
         return 2
     except KeyboardInterrupt:
-        sys.stderr.write(f"{PROG}: interrupted\n")
+        sys.stderr.write(f"{prog}: interrupted\n")
         return 130
     except MemoryError:
-        sys.stderr.write(f"{PROG}: error: out of memory\n")
+        sys.stderr.write(f"{prog}: error: out of memory\n")
         return 2
     except OSError as exc:
-        sys.stderr.write(f"{PROG}: error: {exc}\n")
+        sys.stderr.write(f"{prog}: error: {exc}\n")
         return 2
     finally:
         if own:

@@ -1,4 +1,4 @@
-"""The command line: ``hexsos check | repair | convert | demo``.
+"""The command line: ``hexsos check | repair | convert | demo | paraview | gmsh``.
 
 Exit codes: 0 success (for ``check``: every cell proven valid), 1 the command ran but the mesh is not
 (proven) valid or a repair did not succeed, 2 bad input or another error (one line on stderr, no
@@ -13,7 +13,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from . import cli_check, cli_repair
+from . import cli_check, cli_doors, cli_repair
 from ._version import __version__
 from .cli_common import fail
 from .errors import HexsosError
@@ -29,6 +29,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     cli_check.add_parsers(sub)
     cli_repair.add_parser(sub)
+    cli_doors.add_parsers(sub)
     return parser
 
 
@@ -39,6 +40,7 @@ def main(argv=None) -> int:
     if not getattr(args, "func", None):
         parser.print_help(sys.stderr)
         return 2
+    cli_doors.auto_record()  # lets the ParaView plugin, loaded by hand, find this environment
     try:
         return args.func(args)
     except HexsosError as exc:
