@@ -61,6 +61,7 @@ from .readers._common import (
     _short,
     _writer_formats,
     fix_write_order,
+    meshio_dimensions,
 )
 from .readers.tokens import _Cursor
 
@@ -142,7 +143,7 @@ def write(mesh, path, *, file_format=None) -> list:
         raise MeshWriteError(f"{p}: cannot create a file in {directory} ({exc.strerror or exc})") from exc
     log: list = []
     try:
-        with _quiet() as log:
+        with _quiet() as log, meshio_dimensions([b.type for b in out.cells]):
             meshio.write(tmp, out, file_format=fmt, **kwargs)
         for fix in post:
             fix(tmp)
@@ -187,6 +188,8 @@ def _prepare(mesh: meshio.Mesh, fmt: str, notes: list):
         else:
             cells.append(_copy_block(b))
     m = _copy_mesh(mesh, cells=cells)
+    if fmt in ("vtu", "vtk42", "vtk51", "vtk") and any(b.type == "pyramid14" for b in m.cells):
+        _pyramid14_as_13(m, notes)
     fix_write_order(m, fmt)
     if voxels:
         notes.append(f"{len(voxels)} voxel block(s) written as hexahedron blocks (VTK node order): "
@@ -212,6 +215,21 @@ def _prepare(mesh: meshio.Mesh, fmt: str, notes: list):
     elif fmt == "medit":
         _prepare_medit(m, notes)
     return m, kwargs, post
+
+
+def _pyramid14_as_13(m: meshio.Mesh, notes: list) -> None:
+    """VTK has no 14-node pyramid: write Gmsh's pyramid14 as VTK's 13-node quadratic pyramid (its base-centre
+    node dropped), in VTK's order (meshio's Gmsh permutation of pyramid13)."""
+    from meshio.gmsh.common import _gmsh_to_meshio_order
+
+    n = 0
+    for b in m.cells:
+        if b.type == "pyramid14":
+            b.data = np.ascontiguousarray(_gmsh_to_meshio_order("pyramid13", np.asarray(b.data)[:, :13]))
+            b.type = "pyramid13"
+            n += len(b.data)
+    notes.append(f"{n} pyramid14 cells written as 13-node pyramids (VTK has no 14-node pyramid): the node at "
+                 "the centre of each base is dropped")
 
 
 def _sanitize_dtypes(m: meshio.Mesh, notes: list) -> None:

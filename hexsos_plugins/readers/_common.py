@@ -144,11 +144,57 @@ _DIMS = {"vertex": 0, "line": 1, "line3": 1, "line4": 1, "triangle": 2, "quad": 
          "triangle7": 2, "quad8": 2, "quad9": 2, "quad6": 2}
 
 
+def _missing_dimensions() -> dict:
+    """Cell types meshio 5.3.5's format modules know but its table of topological dimensions lacks (``wedge15``,
+    ``pyramid13``, ...): its CellBlock constructor raises KeyError for them, which makes meshio fail on MSH 4.1
+    and VTU files holding them."""
+    from meshio._mesh import topological_dimension as table
+
+    names = set()
+    with contextlib.suppress(Exception):
+        from meshio._vtk_common import vtk_to_meshio_type
+
+        names |= set(vtk_to_meshio_type.values())
+    with contextlib.suppress(Exception):
+        from meshio.gmsh.common import _gmsh_to_meshio_type
+
+        names |= set(_gmsh_to_meshio_type.values())
+    out = {}
+    for t in names - set(table):
+        if t.startswith(("tetra", "hexahedron", "wedge", "pyramid", "polyhedron")):
+            out[t] = 3
+        elif t.startswith(("line", "vertex")):
+            out[t] = 0 if t.startswith("vertex") else 1
+        else:
+            out[t] = 2
+    return out
+
+
+@contextlib.contextmanager
+def meshio_dimensions(extra=()):
+    """Within: meshio's table of topological dimensions holds every cell type its formats know (and ``extra``
+    names); restored afterwards."""
+    from meshio._mesh import topological_dimension as table
+
+    add = _missing_dimensions()
+    for t in extra:
+        if t not in table and t not in add:
+            add[t] = 3 if t.startswith(("tetra", "hexahedron", "wedge", "pyramid", "polyhedron", "voxel")) \
+                else _DIMS.get(t, 2)
+    for t, d in add.items():
+        table[t] = d
+    try:
+        yield
+    finally:
+        for t in add:
+            table.pop(t, None)
+
+
 def _meshio_read(path: Path, fmt: str):
     """meshio.read with its printing captured; returns (mesh, messages) or raises _ParseError. The cell blocks
     are in meshio's order for ``fmt``: pass the mesh through :func:`fix_read_order`."""
     try:
-        with _quiet() as log:
+        with _quiet() as log, meshio_dimensions():
             mesh = meshio.read(str(path), file_format=fmt)
     except (Exception, SystemExit) as exc:
         said = [re.sub(r"^(Warning|Error):\s*", "", m) for m in log if not m.startswith("Info")]

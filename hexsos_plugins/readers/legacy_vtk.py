@@ -3,7 +3,9 @@ what meshio 5.3.5 rejects or misreads: 8-node cells typed 10 (VTK_TETRA) are rea
 (11) are read as ``voxel`` blocks (which :class:`~hexsos_plugins.mesh.Mesh` converts to VTK order); pixels (8)
 as quads; text after the data is ignored. (meshio's 5.1 reader does not fail on 8-node cells typed 10: it
 silently keeps their last 4 nodes as a tetra; a 5.x file that meshio returns with tetrahedra is therefore
-read again here.) Cells keep the file's node order, which is VTK's (wedges included: no swap).
+read again here.) Gmsh 4.15 writes its quadratic pyramids typed 14 with 13 or 14 nodes: they are read as
+``pyramid13`` / ``pyramid14`` (not checked, kept). Cells keep the file's node order, which is VTK's (wedges
+included: no swap).
 """
 
 from __future__ import annotations
@@ -35,6 +37,8 @@ _VTK_CELLS = {
     30: ("quad6", 6), 31: ("wedge12", 12), 32: ("wedge18", 18), 33: ("hexahedron24", 24),
     34: ("triangle7", 7), 35: ("line4", 4),
 }
+_GMSH_PYRAMID14 = -14  # not a VTK type: Gmsh's 14-node pyramid as Gmsh writes it into legacy VTK files
+_VTK_CELLS[_GMSH_PYRAMID14] = ("pyramid14", 14)
 _VTK_VARIABLE = {2: "poly_vertex", 4: "poly_line", 6: "triangle_strip", 42: "polyhedron"}
 _PIXEL_TO_QUAD = np.array([0, 1, 3, 2])
 
@@ -231,6 +235,9 @@ def _vtk_blocks(conn, offsets, types, cell_data):
         raise _ParseError(f"the cell offsets do not match the connectivity ({len(conn)} node indices)")
     types = types.copy()
     types[(types == 10) & (sizes == 8)] = 12  # published files type their hexahedra as VTK_TETRA
+    # Gmsh 4.15 writes its quadratic pyramids typed 14 (VTK_PYRAMID) with all their 13 / 14 nodes
+    types[(types == 14) & (sizes == 13)] = 27
+    types[(types == 14) & (sizes == 14)] = _GMSH_PYRAMID14
     for t in np.unique(types):
         t = int(t)
         if t in _VTK_VARIABLE or (t not in _VTK_CELLS and t != 7):
