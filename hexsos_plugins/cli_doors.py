@@ -41,7 +41,7 @@ import tempfile
 
 from ._version import __version__
 from .cli_common import fail
-from .errors import DependencyError, MeshReadError
+from .errors import DependencyError, MeshReadError, MeshWriteError
 
 __all__ = [
     "add_parsers",
@@ -261,6 +261,13 @@ def _mismatch_message(found, executable, minor=None) -> str:
             f"install hexsos) and run its 'hexsos paraview', or use a ParaView built with Python {_minor(mine)}")
 
 
+def _no_display() -> bool:
+    """True on X11/Wayland systems with neither display set (and no Qt platform chosen by hand)."""
+    if sys.platform.startswith(("win", "darwin")):
+        return False
+    return not any(os.environ.get(k) for k in ("DISPLAY", "WAYLAND_DISPLAY", "QT_QPA_PLATFORM"))
+
+
 def _child_env() -> dict:
     """The environment ParaView starts in: this one without PYTHONHOME/PYTHONPATH (whose entries are handed
     over by appending instead: prepended, a virtual environment's VTK crashes ParaView), and without this
@@ -356,15 +363,20 @@ _hexsos_start(CONFIG)
 '''
 
 
-def _prepare_meshes(meshes, workdir):
-    """(paths ParaView opens, names shown, conversions): .vtu/.pvtu as they are, others read by hexsos and
-    written to ``workdir`` as .vtu. Raises MeshReadError for a missing file or one hexsos cannot read."""
-    paths, names, converted = [], [], {}
-    for i, mesh in enumerate(meshes):
+def _exist(meshes):
+    for mesh in meshes:
         if not os.path.exists(mesh):
             raise MeshReadError(f"{mesh}: no such file")
         if os.path.isdir(mesh):
             raise MeshReadError(f"{mesh}: is a directory, expected a mesh file")
+
+
+def _prepare_meshes(meshes, workdir):
+    """(paths ParaView opens, names shown, conversions): .vtu/.pvtu as they are, others read by hexsos and
+    written to ``workdir`` as .vtu. Raises MeshReadError for a missing file or one hexsos cannot read."""
+    _exist(meshes)
+    paths, names, converted = [], [], {}
+    for i, mesh in enumerate(meshes):
         name = os.path.basename(mesh)
         if os.path.splitext(mesh)[1].lower() in PARAVIEW_FORMATS:
             paths.append(os.path.abspath(mesh))
@@ -382,7 +394,7 @@ def _prepare_meshes(meshes, workdir):
 def _writable(path, what):
     folder = os.path.dirname(os.path.abspath(path))
     if not os.path.isdir(folder) or not os.access(folder, os.W_OK):
-        raise MeshReadError(f"{what} {path}: expected a writable directory, found "
+        raise MeshWriteError(f"{what} {path}: expected a writable directory, found "
                             f"{'no directory ' + folder if not os.path.isdir(folder) else folder + ' not writable'}")
     return os.path.abspath(path)
 
@@ -409,6 +421,12 @@ def _cmd_paraview(args) -> int:
     else:
         paraview = find_paraview(args.paraview)
         pvpython = find_pvpython(args.pvpython, paraview, required=False)
+        if _no_display():
+            raise DependencyError(
+                "no display for ParaView's GUI (DISPLAY is not set): run it in a desktop session or under a virtual "
+                "X server (xvfb-run -a hexsos paraview ...), or use --script PY for a batch run in pvpython")
+    if not script:
+        _exist(args.meshes)
     screenshot = _writable(args.screenshot, "--screenshot") if args.screenshot else None
     plugin = _plugin_file()
     env = _child_env()
@@ -474,19 +492,24 @@ def _finish(args, report, rc, exe, converted) -> int:
     if rc != 0:
         return fail(f"{exe} exited with code {rc}")
     meshes = report.get("meshes", [])
-    code = 0 if all(m["invalid"] == 0 and m["undecided"] == 0 for m in meshes) else 1
+    failed = [m["error"] for m in meshes if m.get("error")]
+    checked = [m for m in meshes if not m.get("error")]
+    code = 2 if failed else 0 if all(m["invalid"] == 0 and m["undecided"] == 0 for m in checked) else 1
+    if not args.exit_after and code == 1:
+        code = 0
     if args.json:
-        out = dict(report, paraview=exe, converted=converted, exit_code=code if args.exit_after else 0)
-        print(json.dumps(out))
+        print(json.dumps(dict(report, paraview=exe, converted=converted, exit_code=code)))
     else:
-        for m in meshes:
+        for m in checked:
             extra = f", {m['not_checked']} not checked" if m.get("not_checked") else ""
             print(f"{m['file']}: {m['cells']} cells: {m['valid']} valid, {m['invalid']} invalid "
                   f"({m['invalid_inside_only']} inside only), {m['undecided']} undecided{extra}; "
                   f"{m['fold_points']} fold points shown")
         if report.get("screenshot"):
             print(f"wrote {report['screenshot']}")
-    return code if args.exit_after else 0
+    for error in failed:
+        fail(error)
+    return code
 
 
 def _print_env() -> int:

@@ -754,10 +754,6 @@ STATUS_COLOURS = (
 FOLD_COLOUR = (0.0, 0.0, 0.0)
 
 
-class SessionError(RuntimeError):
-    """A mesh could not be opened or checked in ParaView (the message says which and why)."""
-
-
 def _status_counts(grid) -> dict:
     arr = grid.GetCellData().GetArray("hexsos_status") if grid is not None else None
     if arr is None:
@@ -795,9 +791,10 @@ def open_checked(paths, *, names=None, view=None, screenshot=None, size=(1280, 8
     ``screenshot`` the view is saved there as a PNG of ``size`` pixels (without the orientation axes).
 
     Returns a dict: ``meshes`` (per file: ``file``, ``cells``, ``valid``, ``invalid``, ``undecided``,
-    ``not_checked``, ``invalid_inside_only``, ``fold_points``), ``screenshot``, ``plugin`` (this file) and
-    ``kernel`` (the ``hexsos_plugins`` package ParaView's Python imported). Raises :class:`SessionError` when
-    ParaView cannot read a file or the check fails (the filter's own message included).
+    ``not_checked``, ``invalid_inside_only``, ``fold_points``; or ``file`` and ``error`` when ParaView cannot
+    read it or the check fails, with the filter's own message: the other files are still shown),
+    ``screenshot``, ``plugin`` (this file) and ``kernel`` (the ``hexsos_plugins`` package ParaView's Python
+    imported).
     """
     from paraview import simple
 
@@ -808,14 +805,17 @@ def open_checked(paths, *, names=None, view=None, screenshot=None, size=(1280, 8
     for path, name in zip(paths, names):
         reader = simple.OpenDataFile(path)
         if reader is None:
-            raise SessionError(f"{name}: ParaView has no reader for this file")
+            report["meshes"].append({"file": name, "error": f"{name}: ParaView has no reader for this file"})
+            continue
         simple.RenameSource(name, reader)
         check = simple.HexSOSCheck(Input=reader)
         check.UpdatePipeline()
         algorithm = check.GetClientSideObject()  # this module's HexSOSCheckFilter (built-in session)
         result = algorithm.GetResult()
-        if result is None:
-            raise SessionError(f"{name}: HexSOS Check failed: {algorithm.GetLastMessage() or 'no result'}")
+        if result is None:  # the filter said why (its message is in ParaView's Output Messages too)
+            why = (algorithm.GetLastMessage() or "no result").replace("hexsos: ", "", 1)
+            report["meshes"].append({"file": name, "error": f"{name}: HexSOS Check failed: {why}"})
+            continue
         grid = algorithm.GetOutputDataObject(0)
         counts = _status_counts(grid)
         for v, c in counts.items():
@@ -921,6 +921,7 @@ def main(argv=None) -> int:
             fh.write("".join(p + "\n" for p in paths))
         print(f"recorded {len(paths)} directories in {target}")
         return 0
+    print("# simplest: 'hexsos paraview [MESH ...]' starts ParaView with all of this done; by hand:")
     print(f"# hexsos ParaView plugin, packages of {sys.executable} (Python {version});")
     print(f"# ParaView's Python must be {version} too (compiled dependencies such as clarabel)")
     print(f"export PV_PLUGIN_PATH={_HERE}")
