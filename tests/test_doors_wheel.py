@@ -80,9 +80,13 @@ def wheel(tmp_path_factory):
         shutil.copytree(os.path.join(ROOT, pkg), src / pkg,
                         ignore=shutil.ignore_patterns("__pycache__", "*.pyc", "*.egg-info"))
     w = WheelEnv(base)
-    subprocess.run([sys.executable, "-m", "venv", "--system-site-packages", "--without-pip", str(w.venv)],
-                   check=True, timeout=300)
-    install = [sys.executable, "-m", "pip", "--python", w.python, "install", "--no-deps", "--no-input", "-q"]
+    import pip
+
+    outside = tuple(int(x) for x in pip.__version__.split(".")[:2]) >= (22, 3)  # pip --python, no pip inside
+    subprocess.run([sys.executable, "-m", "venv", "--system-site-packages"] + (["--without-pip"] if outside else [])
+                   + [str(w.venv)], check=True, timeout=300)
+    pip_cmd = [sys.executable, "-m", "pip", "--python", w.python] if outside else [w.python, "-m", "pip"]
+    install = pip_cmd + ["install", "--no-deps", "--no-input", "-q"]
     if _can_build_without_isolation():
         install.append("--no-build-isolation")  # else pip fetches setuptools and wheel to build it
     proc = subprocess.run(install + [str(src)], capture_output=True, text=True, timeout=600, check=False)
