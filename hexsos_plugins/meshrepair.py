@@ -196,7 +196,7 @@ def repair(points, hexes, *, cells=None, method: str = "optimize", boundary: str
         and 2 (Table 1). For compatibility ``"auto"`` and ``"sos"`` mean ``"paper"`` with that kernel method.
     boundary : {"slide", "fixed", "free"}, optional, keyword-only
         What boundary vertices may do (module docstring). Default ``"slide"`` (``"fixed"`` with
-        ``pin_boundary=True``). ``method="paper"`` knows ``"fixed"`` and ``"free"`` only.
+        ``pin_boundary=True``). ``method="paper"`` knows ``"fixed"`` and ``"free"`` only (default ``"free"``).
     min_sj : float, optional, keyword-only
         Target minimum scaled Jacobian: stage 2 stops once every linear cell reaches it. Default None: as high
         as it goes (it stops when the minimum rose by less than 1e-3 in 3 rounds, or at the budget).
@@ -264,7 +264,7 @@ def repair(points, hexes, *, cells=None, method: str = "optimize", boundary: str
     if kernel_method not in _KERNEL_METHODS:
         raise InvalidInputError(f"kernel_method: expected 'auto' or 'sos', found {kernel_method!r}")
     if boundary is None:
-        boundary = "fixed" if pin_boundary else "slide"
+        boundary = "fixed" if pin_boundary else ("free" if method == "paper" else "slide")
     if boundary not in BOUNDARY_MODES:
         raise InvalidInputError(f"boundary: expected one of {', '.join(BOUNDARY_MODES)}, found {boundary!r}")
     if min_sj is not None:
@@ -370,6 +370,10 @@ def _repair_paper(P0, H, others, pin, *, boundary, rho, margin, max_iter, kernel
     if res.success and not ok:
         res.message = (f"every hex proven valid, but {_other_message(o1)}: their nodes are pinned "
                        f"(method 'paper' moves hex-only nodes); repair with method='optimize'")
+    elif not ok and others:
+        om = _other_message(o1)
+        res.message = ((f"{om}; " if om else "") + f"{res.message} (method 'paper' pins the nodes of the "
+                       f"{sum(c.shape[0] for _, c in others)} non-hex cells; method='optimize' moves them)")
     res.success = ok
     s["success"] = ok
     s["message"] = res.message
@@ -501,22 +505,43 @@ class _Optimize:
                     rings = rings * 2
                 bad = opt.Problem(V, blocks, sizes, np.ones(N, dtype=bool)).bad_cells(V)
             info1["success"] = untangled
+            if slide and untangled and np.any(V != P0):
+                # back onto the input surface, each vertex as far as it goes with every cell still valid
+                moved_b = bm.vertices[(bm.kind < 2) & np.any(V[bm.vertices] != P0[bm.vertices], axis=1)]
+                if moved_b.size:
+                    prob = opt.Problem(V, blocks, sizes, np.isin(np.arange(N), moved_b))
+                    V = opt.project_valid(prob, V, bm.project(V, moved_b), moved_b)
             stage_s["untangle"] = time.perf_counter() - ts
             # stage 2: raise the minimum scaled Jacobian of the cells below a threshold and their neighbours
             ts = time.perf_counter()
             if untangled:
+                rounds_left = self.max_rounds
                 sj = cell_scaled_jacobians(V, blocks)
                 m = min(float(s.min()) for s in sj if s.size)
-                tau = (self.min_sj + 0.1) if self.min_sj is not None else min(max(0.5, m + 0.2), 0.9)
-                low = [s < tau for s in sj]
-                if any(lw.any() for lw in low):
+                tau = (self.min_sj + 0.1) if self.min_sj is not None else min(max(0.5, m + 0.2), 0.95)
+                while rounds_left > 0:
+                    low = [s < tau for s in sj]
+                    if not any(lw.any() for lw in low):
+                        break
                     core = _dilate(low, blocks, N, self.rings)
                     free = _vertices(core, blocks, N) & movable
                     prob = opt.Problem(V, blocks, sizes, free, slide=bm.slide(V, free) if slide else None)
-                    project = (lambda W: bm.project(W, prob.slide.idx)) if slide and prob.slide.idx.size else None
-                    info2 = opt.improve(prob, target=self.min_sj, max_rounds=self.max_rounds, deadline=deadline,
-                                        project=project, on_step=self._step)
+                    project = (lambda W, p=prob: bm.project(W, p.slide.idx)) if slide and prob.slide.idx.size else None
+                    info = opt.improve(prob, target=self.min_sj, max_rounds=rounds_left, deadline=deadline,
+                                       project=project, on_step=self._step)
                     V = prob.V
+                    for k in ("rounds", "iterations"):
+                        info2[k] += info.get(k, 0)
+                    info2["reached"] = info.get("reached", False)
+                    rounds_left -= max(info.get("rounds", 0), 1)
+                    sj = cell_scaled_jacobians(V, blocks)
+                    m_new = min(float(s.min()) for s in sj if s.size)
+                    # the cells left out (scaled Jacobian >= tau) cap the minimum: widen the region while it pays
+                    if (self.min_sj is None and m_new > tau - 0.05 and tau < 0.95 and m_new > m + 1e-3
+                            and not (deadline is not None and time.perf_counter() > deadline)):
+                        m, tau = m_new, min(m_new + 0.2, 0.95)
+                        continue
+                    break
             stage_s["quality"] = time.perf_counter() - ts
         except _Stopped:
             V = self.best[1]

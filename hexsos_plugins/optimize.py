@@ -23,10 +23,12 @@ Stage 1, untangling (Garanzha, Garanzha, Kaporin et al. 2021, *Foldover-free map
 
 Stage 2, quality
     minimize ``-sum_k log(SJ_k - t) - beta sum_p log(b_p / s^3)`` (SJ_k the normalized corner determinants whose
-    minimum is Verdict's scaled Jacobian, b_p the 27 Bernstein coefficients of every hex, beta = 0.1) with
+    minimum is Verdict's scaled Jacobian, b_p the 27 Bernstein coefficients of every hex, beta = 0.01) with
     L-BFGS and a backtracking line search that rejects any step making some SJ_k <= t or some b_p <= 0: every
-    accepted iterate has all coefficients positive, i.e. is valid by construction. After each solve t moves
-    halfway to the new minimum; it stops at the target, when the minimum stops rising, or at the budget.
+    accepted iterate has all coefficients positive, i.e. is valid by construction. After each solve t moves 90%
+    of the way to the new minimum (measured: 11 rounds to the bunny's plateau, 18 with half); it stops at the
+    target, when the minimum stops rising, or at the budget. (beta = 0.1 held the bunny at min SJ 0.15, 0.01 and
+    0.001 reached 0.51.)
 
 Boundary (both stages): with ``boundary="slide"`` every boundary vertex pays ``w |Q (x - r)|^2 / s^2`` with
 Q the projector onto its input normal (surface vertices) or onto the plane normal to its feature edge (feature
@@ -52,8 +54,9 @@ __all__ = ["Problem", "untangle", "improve", "hex_bernstein_samples", "bernstein
 
 THETA = 1.0 / 128.0  # weight of the volume term in stage 1 (Garanzha et al.)
 THETA_B = 1.0  # weight of the Bernstein barrier in stage 1
-BETA = 0.1  # weight of the Bernstein log-barrier in stage 2
+BETA = 0.01  # weight of the Bernstein log-barrier in stage 2 (measured on the bunny: 0.1 holds the min SJ at 0.15)
 BOUNDARY_WEIGHT = 100.0  # w of the boundary penalty
+T_STEP = 0.9  # stage 2: t moves this fraction of the way to the current minimum after each round
 
 # --- small dense helpers ----------------------------------------------------------------------------------
 
@@ -562,21 +565,61 @@ def improve(prob: Problem, *, target=None, max_rounds=40, max_iter=60, deadline=
                 break
         if deadline is not None and time.perf_counter() > deadline:
             break
-        t = t + 0.5 * (m - t)
+        t = t + T_STEP * (m - t)
     info["min_sj"] = prob.min_sj(prob.V)
     return info
+
+
+def _cell_ok(prob, V, t):
+    """Per block: (M,) bool, cells whose samples all have SJ > t (t None: corner determinants > 0) and, for
+    hexes, all 27 Bernstein coefficients > 0."""
+    out = []
+    sjs = prob.sj_samples(V) if t is not None else prob.corner_dets(V)
+    for v, bb, b in zip(sjs, prob.bernstein(V), prob.blocks):
+        ok = v.min(axis=1) > (t if t is not None else 0.0)
+        if bb is not None:
+            ok &= bb.min(axis=1) > 0
+        out.append(ok)
+    return out
+
+
+def project_valid(prob, V, target, idx, t=None, tries=8):
+    """Move the vertices ``idx`` from V toward ``target`` (same shape as V), each as far as it can go without
+    making a cell of ``prob`` infeasible (see :func:`_cell_ok`): vertices of cells that would fail step back by
+    halves, ``tries`` times, then stay. Returns the new coordinates."""
+    idx = np.asarray(idx, dtype=np.int64)
+    if idx.size == 0:
+        return V
+    alpha = np.ones(V.shape[0])
+    sel = np.zeros(V.shape[0], dtype=bool)
+    sel[idx] = True
+    base = _cell_ok(prob, V, t)
+    W = V
+    for k in range(tries + 1):
+        a = np.where(sel, alpha, 0.0)
+        W = V + a[:, None] * (target - V)
+        ok = _cell_ok(prob, W, t)
+        back = np.zeros(V.shape[0], dtype=bool)
+        for o, b0, b in zip(ok, base, prob.blocks):
+            fail = b0 & ~o
+            if fail.any():
+                back[b["conn"][fail].ravel()] = True
+        back &= sel & (alpha > 0)
+        if not back.any():
+            return W
+        alpha[back] = 0.0 if k == tries - 1 else alpha[back] * 0.5
+    return V
 
 
 def _project_feasible(prob, x, t, project):
     V = prob.full(x)
     W = project(V)
-    d = (W - V)[prob.free].ravel()
-    if not np.any(d):
+    moved = np.flatnonzero(np.any(W != V, axis=1) & prob.free_mask)
+    if moved.size == 0:
         return x
-    step = 1.0
-    for _ in range(6):
-        xn = x + step * d
-        if np.isfinite(prob.barrier_energy(xn, t, grad=False)[0]):
-            return xn
-        step *= 0.5
-    return x
+    Vn = project_valid(prob, V, W, moved, t)
+    if not np.isfinite(prob.barrier_energy(Vn[prob.free].ravel(), t, grad=False)[0]):
+        return x
+    if prob.slide is not None:  # the penalty's references follow the projected positions
+        prob.slide.ref = Vn[prob.slide.idx].copy()
+    return Vn[prob.free].ravel()

@@ -1,0 +1,180 @@
+"""Generated repair test meshes: graded curved Gmsh solids, stress tests, a single fold, a hex + prism block.
+
+Every mesh here is generated (Gmsh through its Python API, numpy), seeded; none is copied from anywhere.
+
+* :func:`graded_solid` -- a curved solid with graded element sizes: a quarter annulus (radii 1 and 2) meshed
+  with quads, the radial lines graded (Gmsh ``Progression``), revolved by 90 degrees about an axis beside it.
+* :func:`stress` -- a fraction of the *interior* vertices moved by a random vector of length up to
+  ``amp`` x the local edge length (uniform in a ball), as the published stress tests do (interior noise, the
+  boundary surface kept).
+* :func:`single_fold` -- a Gmsh box mesh in which one boundary hex has its boundary face moved to where the
+  hex stays positive at all 8 corners but folds inside, and every other hex stays valid.
+* :func:`hex_prism_block` -- issue 14's mesh: an extruded square split into a quad half (hexahedra) and a
+  triangle half (prisms) sharing nodes, interior nodes near the interface moved by up to ``amp`` (seeded).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["graded_solid", "stress", "single_fold", "hex_prism_block", "gmsh_cells"]
+
+
+def _gmsh():
+    import gmsh
+
+    own = not gmsh.isInitialized()
+    if own:
+        gmsh.initialize(["-noenv"], readConfigFiles=False)
+    gmsh.option.setNumber("General.Terminal", 0)
+    return gmsh, own
+
+
+def gmsh_cells(gmsh):
+    """Points and 3-D cells of the current Gmsh model: (P, [(meshio name, conn in VTK order), ...])."""
+    from hexsos_plugins.elements import ELEMENTS
+
+    by_gmsh = {el.gmsh_type: el for el in ELEMENTS.values()}
+    tags, coords, _ = gmsh.model.mesh.getNodes()
+    order = np.argsort(tags)
+    tags = np.asarray(tags)[order]
+    P = np.asarray(coords).reshape(-1, 3)[order]
+    cells, used = [], []
+    for etype in gmsh.model.mesh.getElementTypes(3):
+        el = by_gmsh[int(etype)]
+        _, nodes = gmsh.model.mesh.getElementsByType(etype)
+        conn = np.searchsorted(tags, np.asarray(nodes).reshape(-1, el.n_nodes))[:, list(el.gmsh_to_vtk)]
+        cells.append((el.name, conn))
+        used.append(conn.ravel())
+    u = np.unique(np.concatenate(used))
+    remap = np.full(P.shape[0], -1)
+    remap[u] = np.arange(u.size)
+    return P[u].copy(), [(n, remap[c].astype(np.int64)) for n, c in cells]
+
+
+def graded_solid(n: int = 8, *, progression: float = 1.15):
+    """Points and hexes of a graded curved solid with 2n x n x 2n hexes (see the module docstring)."""
+    gmsh, own = _gmsh()
+    try:
+        gmsh.model.add("hexsos-graded")
+        g = gmsh.model.geo
+        c = g.addPoint(0, 0, 0)
+        a1, a2 = g.addPoint(1, 0, 0), g.addPoint(2, 0, 0)
+        b1, b2 = g.addPoint(0, 1, 0), g.addPoint(0, 2, 0)
+        inner, outer = g.addCircleArc(a1, c, b1), g.addCircleArc(a2, c, b2)
+        l1, l2 = g.addLine(a1, a2), g.addLine(b1, b2)
+        loop = g.addCurveLoop([l1, outer, -l2, -inner])
+        surf = g.addPlaneSurface([loop])
+        g.mesh.setTransfiniteCurve(inner, 2 * n + 1)
+        g.mesh.setTransfiniteCurve(outer, 2 * n + 1)
+        g.mesh.setTransfiniteCurve(l1, n + 1, "Progression", progression)
+        g.mesh.setTransfiniteCurve(l2, n + 1, "Progression", progression)
+        g.mesh.setTransfiniteSurface(surf)
+        g.mesh.setRecombine(2, surf)
+        g.revolve([(2, surf)], 3, 0, 0, 0, 1, 0, np.pi / 2, numElements=[2 * n], recombine=True)
+        g.synchronize()
+        gmsh.model.mesh.generate(3)
+        P, cells = gmsh_cells(gmsh)
+        return P, dict(cells)["hexahedron"]
+    finally:
+        gmsh.model.remove()
+        if own:
+            gmsh.finalize()
+
+
+def _interior(H, N, cells=()):
+    from hexsos_plugins.boundary import boundary_faces
+
+    tris, quads = boundary_faces([("hexahedron", H)] + list(cells))
+    b = np.zeros(N, dtype=bool)
+    b[tris.ravel()] = True
+    b[quads.ravel()] = True
+    return ~b
+
+
+def stress(P, H, *, frac: float = 0.8, amp: float = 1.0, seed: int = 0):
+    """A copy of P with ``frac`` of the interior vertices moved by up to ``amp`` x the local edge length."""
+    from hexsos_plugins.meshrepair import hex_edge_length
+
+    P = np.array(P, dtype=np.float64, copy=True)
+    rng = np.random.default_rng(seed)
+    inner = np.flatnonzero(_interior(H, len(P)))
+    pick = rng.choice(inner, size=int(round(frac * inner.size)), replace=False)
+    # local edge length: mean over the hexes around each vertex
+    h = hex_edge_length(P[H])
+    s = np.bincount(H.ravel(), weights=np.repeat(h, 8), minlength=len(P)) / np.maximum(
+        np.bincount(H.ravel(), minlength=len(P)), 1)
+    d = rng.standard_normal((pick.size, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    r = amp * s[pick] * rng.random(pick.size) ** (1.0 / 3.0)
+    P[pick] += r[:, None] * d
+    return P
+
+
+def single_fold(n: int = 5, *, seed: int = 0):
+    """A Gmsh box mesh (n^3 hexes) with one boundary hex valid at its 8 corners but folded inside.
+
+    Returns points, hexes and the index of the folded hex.
+    """
+    from hexsos_plugins import check
+    from hexsos_plugins.examples import gmsh_mesh
+    from hexsos_plugins.fidelity import boundary_quads
+
+    P, H = gmsh_mesh("box", n)
+    P = P.copy()
+    quads = boundary_quads(H)
+    top = quads[np.isclose(P[quads][:, :, 2], 1.0).all(axis=1)]
+    f = top[np.argmin(np.linalg.norm(P[top].mean(axis=1)[:, :2] - 0.5, axis=1))]
+    near = np.flatnonzero(np.isin(H, f).any(axis=1))
+    m = int(near[np.argmax(np.isin(H[near], f).sum(axis=1))])
+    rng = np.random.default_rng(seed)
+    h = 1.0 / n
+    K = 4000
+    for _ in range(20):
+        d = rng.uniform(-0.9, 0.9, (K, 4, 3)) * h
+        Q = np.repeat(P[None], K, axis=0)
+        Q[:, f] += d
+        X = Q[:, H[near]]  # (K, len(near), 8, 3)
+        r = check(X.reshape(-1, 3), np.arange(X.shape[0] * X.shape[1] * 8).reshape(-1, 8))
+        st = r.status.reshape(K, -1)
+        io = r.invalid_inside_only.reshape(K, -1)
+        j = int(np.flatnonzero(near == m)[0])
+        ok = io[:, j] & (np.delete(st, j, axis=1) == 1).all(axis=1)
+        if ok.any():
+            k = int(np.flatnonzero(ok)[0])
+            P[f] += d[k]
+            return P, H, m
+    raise RuntimeError("single_fold: no corner-valid fold found")
+
+
+def hex_prism_block(n: int = 6, *, amp: float = 0.2, seed: int = 0, layers: int = 5):
+    """Issue 14's mesh: points and [("hexahedron", H), ("wedge", W)] (VTK order), interface nodes moved."""
+    gmsh, own = _gmsh()
+    try:
+        gmsh.model.add("hexsos-mix")
+        g = gmsh.model.geo
+        p = [g.addPoint(x, y, 0) for x, y in ((0, 0), (1, 0), (2, 0), (2, 1), (1, 1), (0, 1))]
+        lines = [g.addLine(p[i], p[(i + 1) % 6]) for i in range(6)]
+        mid = g.addLine(p[1], p[4])
+        left = g.addPlaneSurface([g.addCurveLoop([lines[0], mid, lines[4], lines[5]])])
+        right = g.addPlaneSurface([g.addCurveLoop([lines[1], lines[2], lines[3], -mid])])
+        for c in lines + [mid]:
+            g.mesh.setTransfiniteCurve(c, n + 1)
+        g.mesh.setTransfiniteSurface(left)
+        g.mesh.setRecombine(2, left)
+        g.extrude([(2, left), (2, right)], 0, 0, 1, numElements=[layers], recombine=True)
+        g.synchronize()
+        gmsh.model.mesh.generate(3)
+        P, cells = gmsh_cells(gmsh)
+    finally:
+        gmsh.model.remove()
+        if own:
+            gmsh.finalize()
+    cells = dict(cells)
+    H, W = cells["hexahedron"], cells["wedge"]
+    rng = np.random.default_rng(seed)
+    inner = np.flatnonzero(_interior(H, len(P), [("wedge", W)]) & (np.abs(P[:, 0] - 1.0) < 0.35))
+    d = rng.uniform(-1, 1, (inner.size, 3))
+    P = P.copy()
+    P[inner] += amp * d
+    return P, [("hexahedron", H), ("wedge", W)]

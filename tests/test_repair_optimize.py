@@ -1,0 +1,293 @@
+"""The default repair (untangle, quality, certify), its boundary modes, mixed meshes (issue 14), and its CLI.
+
+Every verdict is re-established by an independent call (``hexsos_plugins.check`` on the hexes, det J at the nodes
+of the prisms through :data:`hexsos_plugins.elements.ELEMENTS`, the scaled Jacobian through
+:mod:`hexsos_plugins.quality`), never read from the repair's own bookkeeping.
+"""
+
+import json
+
+import meshio
+import numpy as np
+import pytest
+
+import hexsos_plugins as hs
+from comparison.stress import graded_solid, hex_prism_block, single_fold, stress
+from hexsos_plugins import optimize as op
+from hexsos_plugins.elements import ELEMENTS
+from hexsos_plugins.errors import InvalidInputError
+from hexsos_plugins.examples import random_hexes, structured_grid
+from hexsos_plugins.hexahedron import det_bernstein, det_vertex_gradient
+from hexsos_plugins.mesh import hexes_to_mesh
+from hexsos_plugins.quality import scaled_jacobian
+
+
+def _inverted_at_nodes(P, name, conn):
+    el = ELEMENTS[name]
+    return el.det(P[conn], el.reference_nodes).min(axis=1) <= 0
+
+
+def _not_valid(P, name, conn):
+    """The independent count the repair must match: the kernel's verdict over the whole cell when it certifies
+    this type, else det J at the nodes."""
+    from hexsos_plugins.meshrepair import _kernel_accepts_cells
+
+    if _kernel_accepts_cells():
+        return hs.check(P, [(name, conn)]).status != 1
+    return _inverted_at_nodes(P, name, conn)
+
+
+def _certified(P, H):
+    return bool((hs.check(P, H).status == 1).all())
+
+
+# ------------------------------------------------------------------------------------------ energies
+
+
+def test_bernstein_coefficients_and_gradients_agree_with_the_kernel():
+    X = random_hexes(40, sigma=0.3, seed=2)
+    B, err = det_bernstein(X)
+    assert np.abs(op.bernstein_coefficients(X) - B.T).max() < 1e-13
+    # corner coefficients are det J at the corners: their gradient is the kernel's det_vertex_gradient there
+    corner = {0: 0, 1: 18, 2: 24, 3: 6, 4: 2, 5: 20, 6: 26, 7: 8}
+    cube = np.array([(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0), (0, 0, 1), (1, 0, 1), (1, 1, 1), (0, 1, 1)], float)
+    for node, p in corner.items():
+        w = np.zeros((40, 27))
+        w[:, p] = 1.0
+        assert np.allclose(op.bernstein_vertex_gradient(X, w), det_vertex_gradient(X, np.tile(cube[node], (40, 1))),
+                           atol=1e-12)
+    # and a wrong index would not match (the check can fail)
+    w = np.zeros((40, 27))
+    w[:, 13] = 1.0
+    assert not np.allclose(op.bernstein_vertex_gradient(X, w), det_vertex_gradient(X, np.tile(cube[0], (40, 1))))
+
+
+@pytest.mark.parametrize("compiled", [False, True])
+def test_energy_gradients_match_finite_differences_and_both_implementations(compiled):
+    P, H = structured_grid(3)
+    rng = np.random.default_rng(1)
+    P = P + 0.04 * rng.standard_normal(P.shape)
+    T = np.array([[0, 1, 4, 16]])  # a tet, a wedge and a pyramid ride along (their own nodes are shared)
+    W = np.array([[0, 1, 4, 16, 17, 20]])
+    Y = np.array([[0, 1, 5, 4, 16]])
+    blocks = [("hexahedron", H), ("tetra", T), ("wedge", W), ("pyramid", Y)]
+    sizes = [np.full(len(c), 1 / 3) for _, c in blocks]
+    prob = op.Problem(P, blocks, sizes, np.ones(len(P), bool), compiled=compiled)
+    ref = op.Problem(P, blocks, sizes, np.ones(len(P), bool), compiled=False)
+    x = prob.x0()
+    d = rng.standard_normal(x.shape)
+    fl = [np.ones(len(H), bool), None, None, None]
+    for fun, rfun in ((lambda z: prob.untangle_energy(z, 0.05, fl), lambda z: ref.untangle_energy(z, 0.05, fl)),
+                      (lambda z: prob.barrier_energy(z, -2.0), lambda z: ref.barrier_energy(z, -2.0))):
+        f, g = fun(x)
+        fd = (fun(x + 1e-6 * d)[0] - fun(x - 1e-6 * d)[0]) / 2e-6
+        assert np.isfinite(f) and g @ d == pytest.approx(fd, rel=1e-6)
+        f2, g2 = rfun(x)
+        assert f == pytest.approx(f2, rel=1e-12) and np.allclose(g, g2, rtol=1e-10, atol=1e-10)
+    # the barrier is infinite outside the feasible set (some sample scaled Jacobian below t)
+    assert prob.barrier_energy(x, 0.999)[0] == np.inf
+
+
+# ------------------------------------------------------------------------------------------ repairs
+
+
+@pytest.fixture(scope="module")
+def graded():
+    return graded_solid(5)
+
+
+def test_stress_test_untangled_certified_quality_and_boundary_on_surface(graded):
+    from hexsos_plugins.boundary import boundary_model
+
+    P, H = graded
+    Q = stress(P, H, frac=0.9, amp=1.0, seed=3)
+    H0 = H.copy()
+    r0 = hs.check(Q, H)
+    assert (r0.status != 1).mean() > 0.4  # a stress test: most hexes inverted
+    r = hs.repair(Q, H)
+    assert np.array_equal(H, H0)  # connectivity unchanged (and not modified)
+    assert r.success and _certified(r.points, H)
+    sj = scaled_jacobian(r.points, H)
+    assert sj.min() == pytest.approx(r.stats["min_sj_after"]) and sj.min() > 0.3
+    assert r.stats["invalid_before"] == int((r0.status == 0).sum()) and r.stats["invalid_after"] == 0
+    # sliding: boundary vertices on the input's boundary surface (the noise left the boundary in place)
+    bm = boundary_model(Q, [("hexahedron", H)])
+    diag = np.linalg.norm(Q.max(0) - Q.min(0))
+    dist = bm.distance(r.points)
+    # every boundary vertex near the surface; nearly all exactly on it (a projection step that would invalidate
+    # a cell is shortened, so a few stay a little off)
+    assert dist.max() < 0.01 * diag and (dist < 1e-9 * diag).mean() > 0.9
+    moved = np.linalg.norm(r.points[bm.vertices] - Q[bm.vertices], axis=1)
+    assert moved.max() > 1e-6 * diag  # they did slide
+    assert np.array_equal(r.points[bm.corners], Q[bm.corners])  # feature corners pinned
+
+
+def test_fixed_boundary_is_exactly_fixed_and_free_moves_it(graded):
+    from hexsos_plugins.boundary import boundary_model
+
+    P, H = graded
+    Q = stress(P, H, frac=0.6, amp=0.8, seed=5)
+    bm = boundary_model(Q, [("hexahedron", H)])
+    r = hs.repair(Q, H, boundary="fixed")
+    assert r.success and _certified(r.points, H)
+    assert np.array_equal(r.points[bm.vertices], Q[bm.vertices])
+    assert r.stats["pinned_vertices"] == bm.vertices.size
+    f = hs.repair(Q, H, boundary="free")
+    assert f.success and _certified(f.points, H)
+    assert not np.array_equal(f.points[bm.vertices], Q[bm.vertices])
+
+
+def test_single_fold_inside_a_corner_valid_hex_is_repaired():
+    P, H, m = single_fold(4)
+    r0 = hs.check(P, H)
+    assert r0.status[m] == 0 and r0.invalid_inside_only[m] and (np.delete(r0.status, m) == 1).all()
+    assert r0.corner_min_det[m] > 0  # corner checks call it valid
+    for boundary in ("slide", "free"):
+        r = hs.repair(P, H, boundary=boundary)
+        assert r.success and _certified(r.points, H), r.message
+
+
+def test_valid_mesh_stays_valid_and_its_min_scaled_jacobian_does_not_drop(graded):
+    P, H = graded
+    Q = stress(P, H, frac=0.3, amp=0.25, seed=1)
+    assert _certified(Q, H)
+    before = scaled_jacobian(Q, H).min()
+    r = hs.repair(Q, H)
+    assert r.success and _certified(r.points, H)
+    assert scaled_jacobian(r.points, H).min() >= before
+    # a target already met: nothing moves
+    t = hs.repair(Q, H, min_sj=0.5 * before)
+    assert t.success and np.array_equal(t.points, Q) and t.stats["min_sj_target_reached"] is True
+
+
+def test_bunny_repaired_to_min_scaled_jacobian_above_02_boundary_sliding(bunny_path):
+    mesh = hs.read(bunny_path)
+    r = hs.repair(mesh.points, mesh.hexes)
+    assert r.success and _certified(r.points, mesh.hexes)
+    assert r.stats["invalid_before"] == 45 and r.stats["boundary"] == "slide"
+    assert scaled_jacobian(r.points, mesh.hexes).min() >= 0.2
+    diag = np.linalg.norm(mesh.points.max(0) - mesh.points.min(0))
+    assert r.stats["boundary_max_distance"] < 0.02 * diag
+
+
+def test_budget_exhausted_returns_the_best_mesh_and_says_so():
+    P, H = structured_grid(2)
+    P = P.copy()
+    P[0] = [0.8, 0.8, 0.8]  # a corner vertex (pinned when sliding) pushed through the mesh: cannot be untangled
+    r = hs.repair(P, H, max_iter=3, fallback=False)
+    assert not r.success and "not proven valid" in r.message and "best mesh" in r.message
+    bad = (hs.check(r.points, H).status != 1).sum()
+    assert bad == r.stats["invalid_after"] + r.stats["undecided_after"] <= r.stats["invalid_before"]
+    assert not _certified(r.points, H)
+    f = hs.repair(P, H, boundary="free")  # free to move that corner: repaired
+    assert f.success and _certified(f.points, H)
+
+
+def test_bad_parameters_raise_typed_errors():
+    P, H = structured_grid(1)
+    for kw, word in (({"method": "magic"}, "method"), ({"boundary": "glue"}, "boundary"), ({"min_sj": 1.5}, "min_sj"),
+                     ({"cells": [("wedge", np.zeros((1, 5), int))]}, "shape"),
+                     ({"cells": [("wedge", np.full((1, 6), 99))]}, "out of range"),
+                     ({"cells": [("blob", np.zeros((1, 6), int))]}, "cell type"),
+                     ({"method": "paper", "boundary": "slide"}, "slide")):
+        with pytest.raises(InvalidInputError, match=word):
+            hs.repair(P, H, **kw)
+
+
+# ------------------------------------------------------------------------------------------ mixed (issue 14)
+
+
+@pytest.fixture(scope="module")
+def mixed():
+    return hex_prism_block(5, amp=0.2, seed=0)
+
+
+def test_mixed_mesh_prisms_repaired_and_counted(mixed):
+    P, cells = mixed
+    H, W = cells[0][1], cells[1][1]
+    inv0 = _not_valid(P, "wedge", W)
+    assert inv0.sum() > 10 and (hs.check(P, H).status != 1).any()
+    r = hs.repair(P, H, cells=[("wedge", W)])
+    inv1 = _not_valid(r.points, "wedge", W)
+    assert not _inverted_at_nodes(r.points, "wedge", W).any()
+    assert r.stats["other_cells_invalid_before"] == inv0.sum()
+    assert r.stats["other_cells_invalid_after"] == inv1.sum() == 0
+    assert r.success and _certified(r.points, H)
+    assert r.stats["by_type"]["wedge"] == {"cells": len(W), "not_valid": 0}
+    assert scaled_jacobian(r.points, [("wedge", W)]).min() > 0
+
+
+def test_mixed_mesh_paper_method_pins_prism_nodes_where_that_suffices_and_says_which_cells_fail(mixed):
+    P, cells = mixed
+    H, W = cells[0][1], cells[1][1]
+    # pinning suffices: the same block, only hexes far from the prisms damaged, prisms intact
+    P0, _ = hex_prism_block(5, amp=0.0)
+    Q = P0.copy()
+    far = np.flatnonzero(~np.isin(np.arange(len(P0)), W) & ~np.isin(np.arange(len(P0)),
+                                                                    hs.meshrepair.boundary_vertex_mask(H, len(P0))))
+    Q[far[:3]] += [0.3, 0.0, 0.0]
+    assert (hs.check(Q, H).status != 1).any() and not _not_valid(Q, "wedge", W).any()
+    r = hs.repair(Q, H, cells=[("wedge", W)], method="paper")
+    assert r.success and _certified(r.points, H)
+    assert np.array_equal(r.points[np.unique(W)], Q[np.unique(W)])  # prism nodes pinned
+    # pinning cannot: inverted prisms stay inverted; the failure names them and the count matches
+    r = hs.repair(P, H, cells=[("wedge", W)], method="paper", max_iter=20)
+    inv = _not_valid(r.points, "wedge", W)
+    assert not r.success and inv.sum() == r.stats["other_cells_invalid_after"] > 0
+    first = int(np.flatnonzero(inv)[0])
+    assert "wedge cells" in r.message and f"wedge {first}" in r.message
+    assert not (inv & ~_not_valid(P, "wedge", W)).any()  # not made worse
+
+
+def test_cli_on_a_gmsh_hex_prism_mesh_reports_what_an_independent_count_finds(tmp_path, capsys, mixed):
+    from hexsos_plugins.cli import main
+
+    P, cells = mixed
+    # .msh both ways: Gmsh's linear prism order is VTK's (meshio's .vtu wedge order is being sorted out by the
+    # readers' owners)
+    src, out = tmp_path / "mix.msh", tmp_path / "out.vtu"
+    meshio.write(str(src), meshio.Mesh(P, [("hexahedron", cells[0][1]), ("wedge", cells[1][1])]), binary=True)
+    raw = src.read_bytes()
+    m = hs.read(str(src))
+    W = next(b.data for b in m.source.cells if b.type == "wedge")  # Gmsh's prism order is VTK's
+    assert np.array_equal(W, cells[1][1])
+    inv0 = _not_valid(m.points, "wedge", W)
+    for method, extra in (("paper", ["--max-iter", "15"]), ("optimize", [])):
+        rc = main(["repair", str(src), "-o", str(out), "--json", "--no-progress", "--method", method,
+                   "--histogram", str(tmp_path / "h.png")] + extra)
+        d = json.loads(capsys.readouterr().out)
+        o = hs.read(str(out))  # VTK node order on every path
+        Wo = dict(o.cells)["wedge"]
+        assert np.array_equal(Wo, W)  # connectivity unchanged
+        inv = _not_valid(o.points, "wedge", Wo)
+        hex_ok = _certified(o.points, o.hexes)
+        assert d["other_cells_invalid_after"] == int(inv.sum())
+        assert d["other_cells_invalid_before"] == int(inv0.sum())
+        assert not (inv & ~inv0).any()  # no prism made worse
+        assert not (_inverted_at_nodes(o.points, "wedge", Wo) & ~_inverted_at_nodes(m.points, "wedge", W)).any()
+        assert rc == (0 if (hex_ok and not inv.any()) else 1)
+        assert d["success"] == (rc == 0)
+        assert d["method"] == method
+        for key in ("min_sj_before", "min_sj_after", "p1_sj_after", "mean_sj_after", "hausdorff", "max_displacement",
+                    "stage_seconds", "by_type"):
+            assert key in d, key
+    assert rc == 0 and d["hausdorff_relative"] < 0.02  # optimize repairs the prisms too
+    assert src.read_bytes() == raw
+    assert (tmp_path / "h.png").read_bytes()[:4] == b"\x89PNG"
+
+
+def test_cli_unreachable_target_exits_1_with_a_certified_mesh(tmp_path, capsys):
+    from hexsos_plugins.cli import main
+
+    P, H = hexes_to_mesh(random_hexes(1, sigma=0.0, seed=0))
+    P = P.copy()
+    P[6] += [0.4, 0.0, 0.0]
+    src, out = tmp_path / "in.vtu", tmp_path / "out.vtu"
+    meshio.write(str(src), meshio.Mesh(P, [("hexahedron", H)]))
+    rc = main(["repair", str(src), "-o", str(out), "--min-sj", "0.99", "--boundary", "fixed", "--no-fidelity",
+               "--plot", str(tmp_path / "c.png")])
+    cap = capsys.readouterr()
+    assert rc == 1 and "target --min-sj 0.99 was not reached" in cap.err
+    o = meshio.read(str(out))
+    assert _certified(o.points, o.cells_dict["hexahedron"]) and "hexsos_scaled_jacobian" in o.cell_data
+    assert (tmp_path / "c.png").stat().st_size > 5000
