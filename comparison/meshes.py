@@ -96,7 +96,7 @@ def repair_row(name, P, H, r0, untangle_max):
     from hexsos_plugins import check
     from hexsos_plugins import repair
 
-    res = repair(P, H)
+    res = repair(P, H, method="paper")  # Table 1 is the paper's Algorithm 2
     st = res.stats
     row = {"mesh": name, "hexes": len(H), "invalid_before": int(np.sum(r0.status == 0)),
            "outer_iterations": st["outer_iterations"], "sos_steps": st["sos_steps"],

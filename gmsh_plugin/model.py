@@ -428,67 +428,103 @@ def _post(result):
     return post_views(result)
 
 
-def _shared_with_other_volumes(gmsh, hx) -> np.ndarray:
-    """Mask (N,) of the hex nodes also used by 3D elements that are not 8-node hexahedra."""
-    mask = np.zeros(hx.points.shape[0], dtype=bool)
+def _other_cells(gmsh, hx):
+    """The model's 3-D elements that are not 8-node hexahedra, as (meshio name, conn) in VTK order over the hex
+    nodes extended by theirs: returns (points, node_tags, cells, skipped) -- ``skipped`` counts elements of
+    types hexsos does not know (left out: their nodes are pinned)."""
+    from hexsos_plugins.elements import ELEMENTS
+
+    by_gmsh = {el.gmsh_type: el for el in ELEMENTS.values()}
+    raw, unknown = [], []
     for etype in gmsh.model.mesh.getElementTypes(3):
         if etype == HEX8:
             continue
         _, nodes = gmsh.model.mesh.getElementsByType(etype)
-        nodes = np.unique(np.asarray(nodes, dtype=np.uint64))
-        pos = np.searchsorted(hx.node_tags, nodes)
-        ok = pos < hx.node_tags.size
-        pos, nodes = pos[ok], nodes[ok]
-        mask[pos[hx.node_tags[pos] == nodes]] = True
-    return mask
+        nodes = np.asarray(nodes, dtype=np.uint64)
+        el = by_gmsh.get(int(etype))
+        if el is None:
+            unknown.append(nodes)
+            continue
+        raw.append((el, nodes.reshape(-1, el.n_nodes)[:, list(el.gmsh_to_vtk)]))
+    extra = np.unique(np.concatenate([c.ravel() for _, c in raw] + unknown)) if (raw or unknown) else \
+        np.zeros(0, np.uint64)
+    extra = np.setdiff1d(extra, hx.node_tags)
+    tags = np.concatenate([hx.node_tags, extra])
+    points = hx.points
+    if extra.size:
+        coords = np.array([gmsh.model.mesh.getNode(int(t))[0] for t in extra], dtype=np.float64).reshape(-1, 3)
+        points = np.vstack([hx.points, coords])
+    order = np.argsort(tags, kind="stable")
+    st = tags[order]
+
+    def dense(t):
+        return order[np.searchsorted(st, t)]
+
+    cells = [(el.name, dense(c).astype(np.int64)) for el, c in raw]
+    pinned = np.zeros(points.shape[0], dtype=bool)
+    for u in unknown:
+        pinned[dense(u)] = True
+    return points, tags, cells, pinned
 
 
-def repair_model(*, rho: float = 200.0, margin=None, pin_boundary: bool = False, max_iter: int = 100,
+def repair_model(*, repair_method: str = "optimize", boundary: str | None = None, min_sj=None,
+                 rho: float = 200.0, margin=None, pin_boundary: bool = False, max_iter=None,
                  method: str = "auto", relaxation: str = "quad2", progress=None, post_views: bool = True,
-                 pin_shared: bool = True):
-    """Repair the hexahedra of the current Gmsh model: move its nodes, re-check, re-post the views.
+                 pin_shared: bool | None = None, time_limit=None):
+    """Repair the current Gmsh model: move its nodes, re-check, re-post the views.
 
     Parameters
     ----------
-    rho, margin, pin_boundary, max_iter, method, relaxation, progress : keyword-only
-        Passed to :func:`hexsos_plugins.repair` (defaults 200, None = the repair's default relative margin,
-        False, 100, "auto", "quad2").
+    repair_method : {"optimize", "paper"}, keyword-only
+        :func:`hexsos_plugins.repair`'s ``method``: untangle, raise the quality, certify (default), or the
+        paper's Algorithms 1 and 2.
+    boundary, min_sj, time_limit : keyword-only
+        Passed to :func:`hexsos_plugins.repair` (default boundary: ``"slide"`` for optimize, ``"free"`` for
+        paper; ``"fixed"`` with ``pin_boundary=True``).
+    rho, margin, max_iter, relaxation, progress : keyword-only
+        Passed to :func:`hexsos_plugins.repair`; ``method`` is the kernel's (``"auto"`` / ``"sos"``, the
+        paper's repair's u* finder).
     post_views : bool, keyword-only
         Re-post the check views of the repaired model and a ``"hexsos: displacement"`` NodeData view.
-    pin_shared : bool, keyword-only
-        Keep fixed the nodes the hexes share with other 3D elements (tetrahedra, prisms, pyramids,
-        higher-order hexahedra), which the repair does not see. Default True.
+    pin_shared : bool, optional, keyword-only
+        True: keep fixed every node the hexes share with other 3-D elements. Default (None): the repair decides
+        -- linear tetrahedra, prisms and pyramids are repaired with the hexes by ``"optimize"`` (their nodes move
+        only by steps that keep them valid), their nodes pinned by ``"paper"``; nodes of elements of other types
+        (higher order) are pinned. Every 3-D element is checked: the repair succeeds only if all are valid.
 
-    Only nodes that moved are written back, with ``gmsh.model.mesh.setNode`` (about 10 us per node through
-    the Python API; Gmsh 4.15 has no bulk setter: ``addNodes`` on existing tags adds duplicates). Parametric
-    coordinates of nodes on CAD entities are left as they were.
+    Only nodes that moved are written back, with ``gmsh.model.mesh.setNode``. Parametric coordinates of nodes
+    on CAD entities are left as they were.
 
     Returns
     -------
     RepairResult
-        The kernel's result (``.points``, ``.success``, ``.check``, ``.stats``, ...). Its ``extra`` dict also
-        holds ``"model_check"``: the check of the Gmsh model after the nodes were moved (read back from
-        Gmsh, as :func:`check_model` returns it), ``"gmsh"``: the :class:`GmshHexes` the repair started from,
-        and ``"moved_node_tags"``: the tags of the nodes that moved.
+        The kernel's result; ``extra`` also holds ``"model_check"`` (the check of the hexes read back from Gmsh),
+        ``"gmsh"`` (the :class:`GmshHexes` the repair started from), ``"moved_node_tags"``, and
+        ``"other_cells"`` (the final check of the other 3-D elements).
     """
     from hexsos_plugins import repair
 
     gmsh = _gmsh()
     hx = model_hexes()
-    pinned = _shared_with_other_volumes(gmsh, hx) if pin_shared else None
-    if pinned is not None and not pinned.any():
-        pinned = None
-    res = repair(hx.points, hx.hexes, rho=rho, margin=margin, pin_boundary=pin_boundary, max_iter=max_iter,
-                 method=method, relaxation=relaxation, progress=progress, pinned=pinned)
+    points, tags, cells, pinned = _other_cells(gmsh, hx)
+    if pin_shared:
+        for _, conn in cells:
+            pinned[conn.ravel()] = True
+    # a kernel method as repair_method (the earlier signature) means the paper's repair
+    res = repair(points, hx.hexes, cells=cells, method=repair_method, boundary=boundary, min_sj=min_sj,
+                 rho=rho, margin=margin, pin_boundary=pin_boundary, max_iter=max_iter, kernel_method=method,
+                 relaxation=relaxation, progress=progress, pinned=pinned if pinned.any() else None,
+                 time_limit=time_limit)
     new = np.asarray(res.points, dtype=np.float64)
-    moved = np.flatnonzero(np.any(new != hx.points, axis=1))
+    moved = np.flatnonzero(np.any(new != points, axis=1))
     for i in moved:
-        gmsh.model.mesh.setNode(int(hx.node_tags[i]), new[i], [])
+        gmsh.model.mesh.setNode(int(tags[i]), new[i], [])
     after = check_model(method=method, relaxation=relaxation, post_views=post_views)
+    n = hx.points.shape[0]
     if post_views:
-        post_displacement(hx.node_tags, new - hx.points, model=hx.model)
+        post_displacement(hx.node_tags, (new - points)[:n], model=hx.model)
         after.extra["gmsh_views"] = hexsos_views()
     res.extra["model_check"] = after
     res.extra["gmsh"] = hx
-    res.extra["moved_node_tags"] = hx.node_tags[moved]
+    res.extra["moved_node_tags"] = tags[moved]
     return res

@@ -16,9 +16,11 @@ The panel (names as stored in ONELAB; Gmsh hides the leading digits, which fix t
 
     hexsos
       Parameters   Method (auto | sos), Relaxation (quad2 | paper), Repair rho, Repair margin (auto | number),
-                   Pin boundary, Repair max iterations
+                   Pin boundary, Repair max iterations, Repair method (optimize | paper), Repair boundary
+                   (slide | fixed | free), Repair target min scaled Jacobian (auto | number)
       [Check]  [Repair]
-      Results      Hexahedra, Invalid, Invalid inside only, Undecided, Minimum det J, Skipped, Message
+      Results      Hexahedra, Invalid, Invalid inside only, Undecided, Minimum det J, Skipped, Message,
+                   Minimum scaled Jacobian, Other 3-D cells not valid
 """
 
 from __future__ import annotations
@@ -42,6 +44,9 @@ __all__ = [
     "P_MARGIN",
     "P_PIN",
     "P_MAX_ITER",
+    "P_REPAIR_METHOD",
+    "P_BOUNDARY",
+    "P_MIN_SJ",
     "P_CHECK",
     "P_REPAIR",
     "R_HEXES",
@@ -51,6 +56,8 @@ __all__ = [
     "R_MIN_DET",
     "R_SKIPPED",
     "R_MESSAGE",
+    "R_MIN_SJ",
+    "R_OTHER",
     "define_parameters",
     "read_parameters",
     "handle_action",
@@ -75,6 +82,9 @@ P_RHO = f"{_ROOT}/0Parameters/2Repair rho"
 P_MARGIN = f"{_ROOT}/0Parameters/3Repair margin"
 P_PIN = f"{_ROOT}/0Parameters/4Pin boundary"
 P_MAX_ITER = f"{_ROOT}/0Parameters/5Repair max iterations"
+P_REPAIR_METHOD = f"{_ROOT}/0Parameters/6Repair method"
+P_BOUNDARY = f"{_ROOT}/0Parameters/7Repair boundary"
+P_MIN_SJ = f"{_ROOT}/0Parameters/8Repair target min scaled Jacobian"
 P_CHECK = f"{_ROOT}/1Check"
 P_REPAIR = f"{_ROOT}/2Repair"
 R_HEXES = f"{_ROOT}/3Results/0Hexahedra"
@@ -84,12 +94,15 @@ R_UNDECIDED = f"{_ROOT}/3Results/3Undecided"
 R_MIN_DET = f"{_ROOT}/3Results/4Minimum det J"
 R_SKIPPED = f"{_ROOT}/3Results/5Skipped (higher order)"
 R_MESSAGE = f"{_ROOT}/3Results/6Message"
+R_MIN_SJ = f"{_ROOT}/3Results/7Minimum scaled Jacobian"
+R_OTHER = f"{_ROOT}/3Results/8Other 3-D cells not valid"
 
 _LAST = {"result": None, "error": None}
-_RESULTS = (R_HEXES, R_INVALID, R_INSIDE_ONLY, R_UNDECIDED, R_MIN_DET, R_SKIPPED)
+_RESULTS = (R_HEXES, R_INVALID, R_INSIDE_ONLY, R_UNDECIDED, R_MIN_DET, R_SKIPPED, R_MIN_SJ, R_OTHER)
 
 
-def _parameters(method="auto", relaxation="quad2", rho=200.0, margin="auto", pin=0, max_iter=100):
+def _parameters(method="auto", relaxation="quad2", rho=200.0, margin="auto", pin=0, max_iter=100,
+                repair_method="optimize", boundary="slide", min_sj="auto"):
     def result(name, label_help):
         return {"type": "number", "name": name, "values": [0], "readOnly": True, "help": label_help,
                 "attributes": {"Highlight": "Ivory"}}
@@ -106,7 +119,15 @@ def _parameters(method="auto", relaxation="quad2", rho=200.0, margin="auto", pin
         {"type": "number", "name": P_PIN, "values": [pin], "choices": [0, 1],
          "help": "keep the boundary nodes where they are during the repair"},
         {"type": "number", "name": P_MAX_ITER, "values": [max_iter], "min": 1, "max": 10000, "step": 10,
-         "help": "iterations of the repair"},
+         "help": "outer iterations of the repair (optimize: per stage, at most 60 untangling steps and 40 quality "
+                 "rounds below 100; paper: Algorithm 2's)"},
+        {"type": "string", "name": P_REPAIR_METHOD, "values": [repair_method], "choices": ["optimize", "paper"],
+         "help": "optimize: untangle, raise the minimum scaled Jacobian, certify every cell; paper: Algorithms 1-2"},
+        {"type": "string", "name": P_BOUNDARY, "values": [boundary], "choices": ["slide", "fixed", "free"],
+         "help": "slide: boundary nodes stay on the input's boundary surface, features kept; fixed; free "
+                 "(the paper's repair: fixed or free)"},
+        {"type": "string", "name": P_MIN_SJ, "values": [min_sj], "choices": ["auto", "0.2", "0.3", "0.5"],
+         "help": "stop raising the quality once every cell reaches this scaled Jacobian; auto: as high as it goes"},
         {"type": "string", "name": P_CHECK, "values": [ACTION_CHECK], "label": "Check",
          "attributes": {"Macro": "Action", "Aspect": "Button"},
          "help": "prove every 8-node hex valid or invalid; posts the views"},
@@ -119,6 +140,8 @@ def _parameters(method="auto", relaxation="quad2", rho=200.0, margin="auto", pin
         result(R_UNDECIDED, "hexes neither proven valid nor invalid (e.g. flat)"),
         result(R_MIN_DET, "the smallest det J over all hexes, on the parameter cube [0,1]^3 (Gmsh's minDetJac x 8)"),
         result(R_SKIPPED, "higher-order hexahedra, not trilinear: not checked"),
+        result(R_MIN_SJ, "the smallest corner scaled Jacobian (Verdict's, as HexaLab and ParaView) over the linear cells"),
+        result(R_OTHER, "tetrahedra, prisms, pyramids, ... not valid after the last repair"),
         {"type": "string", "name": R_MESSAGE, "values": ["press Check"], "readOnly": True,
          "attributes": {"Highlight": "Ivory"}},
         # the main "Run" button of the ONELAB window runs the check too
@@ -171,8 +194,26 @@ def read_parameters() -> dict:
         raise InvalidInputError(f"Repair rho: expected a number >= 0, found {rho}")
     if not (math.isfinite(max_iter) and max_iter >= 1):
         raise InvalidInputError(f"Repair max iterations: expected an integer >= 1, found {max_iter}")
+    repair_method = _string(P_REPAIR_METHOD, "optimize").strip()
+    if repair_method not in ("optimize", "paper"):
+        raise InvalidInputError(f"Repair method: expected 'optimize' or 'paper', found {repair_method!r}")
+    boundary = _string(P_BOUNDARY, "slide").strip()
+    if boundary not in ("slide", "fixed", "free"):
+        raise InvalidInputError(f"Repair boundary: expected 'slide', 'fixed' or 'free', found {boundary!r}")
+    sj_s = _string(P_MIN_SJ, "auto").strip()
+    if sj_s.lower() in ("", "auto", "default", "none"):
+        min_sj = None
+    else:
+        try:
+            min_sj = float(sj_s)
+        except ValueError:
+            raise InvalidInputError(f"Repair target min scaled Jacobian: expected 'auto' or a number in (0, 1), "
+                                    f"found {sj_s!r}") from None
+        if not (0 < min_sj < 1):
+            raise InvalidInputError(f"Repair target min scaled Jacobian: expected a number in (0, 1), found {sj_s!r}")
     return {"method": method, "relaxation": relaxation, "rho": rho, "margin": margin,
-            "pin_boundary": bool(_number(P_PIN, 0.0)), "max_iter": int(max_iter)}
+            "pin_boundary": bool(_number(P_PIN, 0.0)), "max_iter": int(max_iter), "repair_method": repair_method,
+            "boundary": boundary, "min_sj": min_sj}
 
 
 def _highlight(name, colour):
@@ -185,8 +226,15 @@ def _highlight(name, colour):
     gmsh.onelab.set(json.dumps({"onelab": {"name": "hexsos", "parameters": [p]}}))
 
 
-def _show_result(result, message: str) -> None:
+def _show_result(result, message: str, *, min_sj=None, other=0) -> None:
     gmsh = _gmsh()
+    if min_sj is None:
+        from hexsos_plugins.quality import scaled_jacobian
+
+        hx0 = result.extra.get("gmsh")
+        min_sj = float(np.min(scaled_jacobian(hx0.points, hx0.hexes))) if hx0 is not None else float("nan")
+    gmsh.onelab.setNumber(R_MIN_SJ, [float(min_sj)])
+    gmsh.onelab.setNumber(R_OTHER, [int(other)])
     c = result.counts()
     hx = result.extra.get("gmsh")
     gmsh.onelab.setNumber(R_HEXES, [c["hexes"]])
@@ -196,8 +244,8 @@ def _show_result(result, message: str) -> None:
     gmsh.onelab.setNumber(R_MIN_DET, [float(np.min(result.min_det))])
     gmsh.onelab.setNumber(R_SKIPPED, [sum(hx.skipped.values()) if hx is not None else 0])
     gmsh.onelab.setString(R_MESSAGE, [message])
-    bad = c["invalid"] + c["undecided"] > 0
-    for name in (R_INVALID, R_INSIDE_ONLY, R_UNDECIDED, R_MIN_DET):
+    bad = c["invalid"] + c["undecided"] + int(other) > 0
+    for name in (R_INVALID, R_INSIDE_ONLY, R_UNDECIDED, R_MIN_DET, R_OTHER):
         _highlight(name, "LightPink" if bad else "PaleGreen")
 
 
@@ -225,16 +273,26 @@ def run_repair(**kwargs):
     re-check, re-post the views and show the counts. Returns the RepairResult."""
     p = read_parameters()
     p.update(kwargs)
-    res = repair_model(rho=p["rho"], margin=p["margin"], pin_boundary=p["pin_boundary"], max_iter=p["max_iter"],
-                       method=p["method"], relaxation=p["relaxation"])
+    boundary = "fixed" if p["pin_boundary"] else p["boundary"]
+    if p["repair_method"] == "paper" and boundary == "slide":
+        boundary = "free"
+    max_iter = p["max_iter"] if p["repair_method"] == "paper" or p["max_iter"] < 100 else None
+    res = repair_model(repair_method=p["repair_method"], boundary=boundary, min_sj=p["min_sj"], rho=p["rho"],
+                       margin=p["margin"], max_iter=max_iter, method=p["method"], relaxation=p["relaxation"])
     after = res.extra["model_check"]
     c = after.counts()
-    msg = (f"repair {'succeeded' if res.success else 'did not succeed'}: {c['invalid']} invalid, "
-           f"{c['undecided']} undecided left; {len(res.extra['moved_node_tags'])} nodes moved "
-           f"(max {res.stats.get('max_displacement', float('nan')):.3g})")
+    s = res.stats
+    other = int(s.get("other_cells_invalid_after", 0))
+    # success speaks for every 3-D cell of the model: the hexes (re-checked as Gmsh holds them) and the others
+    ok = res.success and c["invalid"] + c["undecided"] == 0 and other == 0
+    msg = (f"repair {'succeeded' if ok else 'did not succeed'}: {c['invalid']} invalid, "
+           f"{c['undecided']} undecided hexes left" + (f", {other} other 3-D cells not valid" if other else "")
+           + f"; min scaled Jacobian {s.get('min_sj_before', float('nan')):.3f} -> "
+           f"{s.get('min_sj_after', float('nan')):.3f}; {len(res.extra['moved_node_tags'])} nodes moved "
+           f"(max {s.get('max_displacement', float('nan')):.3g})")
     if res.message:
         msg += f"; {res.message}"
-    _show_result(after, msg)
+    _show_result(after, msg, min_sj=s.get("min_sj_after"), other=other)
     return res
 
 

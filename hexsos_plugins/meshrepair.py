@@ -607,7 +607,13 @@ class _Optimize:
                                  if o_["name"] not in LINEAR_TYPES):
                 why.append("cells of types the optimizer does not move (quadratic cells) are inverted and their "
                            "nodes are pinned")
-            if self.boundary == "fixed":
+            stuck = (r.status != 1) & pin[H].all(axis=1)
+            if stuck.any():
+                k = int(stuck.sum())
+                why.append(f"{k} of the hexes not proven valid have all 8 vertices pinned ("
+                           + ("feature corners of the boundary: try boundary='free' or a larger feature_angle"
+                              if self.boundary == "slide" else "fixed boundary or pinned") + ")")
+            elif self.boundary == "fixed":
                 why.append("the boundary is fixed (try boundary='slide')")
             message = "; ".join(parts) + (" (" + "; ".join(why) + ")" if why else "") + \
                 "; the best mesh seen is returned"
