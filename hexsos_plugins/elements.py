@@ -38,7 +38,8 @@ polynomial space and node positions (Lagrange interpolation), so exact arithmeti
   N_4 = t. Its det J is (1 - t)^2 times a polynomial, so it is 0 at the apex of *every* pyramid and says
   nothing there. hexsos measures pyramids by ``det J / (1 - t)^2`` (the rational pyramid space of
   Bergot et al. and Johnen et al., as Gmsh): the determinant of the Jacobian whose r and s columns are
-  divided by (1 - t) (exactly: those derivatives carry the factor). For a pyramid it is independent of t.
+  divided by (1 - t) (exactly: those derivatives carry the factor). For a pyramid it is independent of t,
+  and bilinear in (r, s) (the r^2 and s^2 terms cancel), so its minimum lies at a base corner.
 
 det J is the determinant of ``d x / d (r, s, t)`` (columns the derivatives along r, s, t); the unit
 reference cell (nodes at their parametric coordinates) has det J = 1 (pyramid: the measure 1 when the apex
@@ -319,7 +320,7 @@ ELEMENTS = {
     "tetra10": Element("tetra10", 24, 11, "tet", 2, _nodes(_TET4, _TET10_EDGES), 4, _TET_FACES,
                        _monomial_space(_p(2)), (0, 1, 2, 3, 4, 5, 6, 7, 9, 8), 1.0),
     "pyramid": Element("pyramid", 14, 7, "pyramid", 1, _nodes(_PYR5), 4, _PYR_FACES, _pyramid_basis(), _IDENTITY[5],
-                       float("nan")),
+                       0.25),
     "wedge": Element("wedge", 13, 6, "prism", 1, _nodes(_WEDGE6), 6, _WEDGE_FACES, _monomial_space(_wedge_space(1, 1)),
                      _IDENTITY[6], 0.5),
     "wedge15": Element("wedge15", 26, 18, "prism", 2, _nodes(_WEDGE6, _WEDGE15_EDGES), 6, _WEDGE_FACES,

@@ -230,6 +230,9 @@ def _elements2(cur: _Bytes):
             width = 4 + ntags + k
             cur.pos -= 12
             most = min(total - done, (len(cur.raw) - cur.pos) // (4 * width))
+            if most < 1:
+                raise _ParseError(f"expected {total - done} more elements in $Elements, found the end of the file "
+                                  "(truncated?)")
             view = np.frombuffer(cur.raw, dtype="<i4", count=most * width, offset=cur.pos).reshape(most, width)
             same = (view[:, 0] == gtype) & (view[:, 1] == 1) & (view[:, 2] == ntags)
             count = int(most if same.all() else np.argmin(same))
