@@ -126,8 +126,9 @@ def _where(path) -> str:
     return f"{path}: " if path else ""
 
 
-def _check_points(points, path=None) -> np.ndarray:
-    """Points as a float64 (N, 3) array; raises InvalidInputError naming the first bad point."""
+def _check_points(points, path=None, copy=True) -> np.ndarray:
+    """Points as a float64 (N, 3) array (a private copy unless ``copy=False`` and already float64); raises
+    InvalidInputError naming the first bad point."""
     try:
         arr = np.asarray(points)
     except Exception as exc:  # ragged lists and the like
@@ -137,7 +138,11 @@ def _check_points(points, path=None) -> np.ndarray:
         raise InvalidInputError(f"{_where(path)}expected points of shape (N, 3), found shape {arr.shape}")
     if arr.dtype.kind not in "biuf":
         raise InvalidInputError(f"{_where(path)}expected real point coordinates, found dtype {arr.dtype}")
-    arr = np.array(arr, dtype=np.float64)  # always a private copy
+    if copy or arr.dtype != np.float64:
+        arr = np.array(arr, dtype=np.float64)
+    else:
+        arr = arr.view()
+        arr.flags.writeable = False  # shared with source
     bad = ~np.isfinite(arr).all(axis=1)
     if bad.any():
         i = int(np.flatnonzero(bad)[0])
@@ -148,7 +153,7 @@ def _check_points(points, path=None) -> np.ndarray:
     return arr
 
 
-def _as_index_array(data, what, path=None, k=8) -> np.ndarray:
+def _as_index_array(data, what, path=None, k=8, copy=True) -> np.ndarray:
     try:
         arr = np.asarray(data)
     except Exception as exc:
@@ -160,6 +165,10 @@ def _as_index_array(data, what, path=None, k=8) -> np.ndarray:
             raise InvalidInputError(f"{_where(path)}{what}: expected integer node indices, found non-integer values")
     elif arr.dtype.kind not in "iu":
         raise InvalidInputError(f"{_where(path)}{what}: expected integer node indices, found dtype {arr.dtype}")
+    if not copy and arr.dtype == np.int64 and arr.flags.c_contiguous:
+        arr = arr.view()
+        arr.flags.writeable = False  # shared with source: neither may change the other
+        return arr
     return np.array(arr, dtype=np.int64)
 
 
@@ -350,9 +359,10 @@ class Mesh:
         return cls.from_meshio(src)
 
     @classmethod
-    def from_meshio(cls, mesh: meshio.Mesh, path=None) -> "Mesh":
+    def from_meshio(cls, mesh: meshio.Mesh, path=None, *, copy: bool = True) -> "Mesh":
         """The checkable 3-D cells of a ``meshio.Mesh`` (blocks in VTK node order); the mesh itself is kept,
-        untouched, as ``source``.
+        untouched, as ``source``. With ``copy=False`` (the readers, whose meshes are their own) int64 cell blocks
+        and float64 points are shared with ``source`` instead of copied, read-only, to save memory.
 
         Raises
         ------
@@ -370,7 +380,7 @@ class Mesh:
                 if n == 0:
                     continue
                 k = 8 if t == "voxel" else ELEMENTS[t].n_nodes
-                data = _as_index_array(block.data, f"cell block {b} ({t})", path, k)
+                data = _as_index_array(block.data, f"cell block {b} ({t})", path, k, copy=copy and t != "voxel")
                 blocks.append((b, "hexahedron" if t == "voxel" else t, data[:, VOXEL_TO_VTK] if t == "voxel" else data))
             elif is_3d(t) and n:
                 skipped[t] += n
@@ -384,7 +394,7 @@ class Mesh:
             raise NoCellsError(
                 f"{_where(path)}expected 3-D cells hexsos can check ({', '.join(CHECKABLE)}), found {found}{note}"
             )
-        points = _check_points(mesh.points, path)
+        points = _check_points(mesh.points, path, copy=copy)
         start = 0
         for b, t, conn in blocks:
             src_type = mesh.cells[b].type

@@ -189,7 +189,7 @@ def read(path, *, file_format=None) -> Mesh:
         from :meth:`Mesh.from_meshio`: no checkable 3-D cell; NaN coordinates, indices out of range.
     """
     mesh, fmt, who = _read_any(path, file_format)
-    m = Mesh.from_meshio(mesh, path=str(path))
+    m = Mesh.from_meshio(mesh, path=str(path), copy=False)
     m.file_format, m.reader = fmt, who
     return m
 
