@@ -261,6 +261,7 @@ def test_voxel_source_is_written_as_hexahedra(tmp_path):
 
 
 def test_vtu_voxels_are_read_by_vtk_and_meshio_refuses_them(tmp_path, monkeypatch):
+    monkeypatch.setattr("hexsos_plugins.readers.VTK_MIN_BYTES", 0)
     path = tmp_path / "voxel.vtu"
     with contextlib.redirect_stderr(io.StringIO()):
         meshio.write(str(path), meshio.Mesh(CUBE, [("hexahedron", [list(range(8))]), ("tetra", [[0, 1, 3, 4]])]),

@@ -216,11 +216,12 @@ def test_msh_versions_and_gmsh_vtk_hold_the_same_cells(gm, kind):
     assert all(v > 0 for d in ref.values() for v in [d.min()])  # Gmsh's cells are valid at these points
 
 
-def test_gmsh_vtk_files_with_linear_prisms_are_reported_mirrored(gm):
+def test_gmsh_vtk_files_with_linear_prisms_are_reported_mirrored(gm, monkeypatch):
     """Gmsh writes linear prisms to .vtk with nodes 1<->2 and 4<->5 swapped (as meshio does): VTK's own shape
     functions, vtkMeshQuality and vtkCellValidator call those cells inverted. hexsos reads the file's order and
     reports the wedges as left-handed (per type), on every reader path; it does not fix them unasked."""
     path = Path(gm["order1"]["vtk"])
+    monkeypatch.setattr("hexsos_plugins.readers.VTK_MIN_BYTES", 0)
     m = hio.read(path)
     assert m.reader == "vtk"
     assert m.orientations() == {"tetra": "right-handed", "pyramid": "right-handed", "wedge": "left-handed",
@@ -431,6 +432,7 @@ def test_gmsh_reader_leaves_no_session_and_declines_a_running_one(gm):
 
 
 def test_vtk_and_meshio_read_vtu_alike(gm, tmp_path, monkeypatch):
+    monkeypatch.setattr("hexsos_plugins.readers.VTK_MIN_BYTES", 0)
     src = hio.read(gm["order2i"]["41b"])
     path = tmp_path / "a.vtu"
     hio.write(src.to_meshio(cell_data={"r": np.arange(src.n_cells, dtype=float)}), path)
@@ -440,3 +442,20 @@ def test_vtk_and_meshio_read_vtu_alike(gm, tmp_path, monkeypatch):
     assert hio.read(path).reader == "vtk"
     monkeypatch.setattr("hexsos_plugins.readers.vtk_api._AVAILABLE", False)
     assert hio.read(path).reader == "meshio"
+
+
+def test_vtk_reader_only_where_it_pays(tmp_path, monkeypatch):
+    """VTK's readers are imported only for large files (or when VTK is loaded already): a small .vtu in a process
+    without VTK is read by meshio, and VTK is not imported."""
+    import subprocess
+    import sys
+
+    P = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], float)
+    path = tmp_path / "small.vtu"
+    hio.write(Mesh.from_cells(P, [("tetra", [[0, 1, 2, 3]])]), path)
+    code = ("import sys, hexsos_plugins.io as hio; m = hio.read(sys.argv[1]); "
+            "print(m.reader, 'vtkmodules.vtkIOXML' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code, str(path)], capture_output=True, text=True, check=True)
+    assert out.stdout.split() == ["meshio", "False"]
+    monkeypatch.setattr("hexsos_plugins.readers.VTK_MIN_BYTES", 0)
+    assert hio.read(path).reader == "vtk"  # negative case: above the threshold VTK reads it

@@ -27,8 +27,10 @@ Which reader reads what, in the order tried (the first that succeeds wins; measu
   links, parametric nodes, ``$ElementNodeData``), then meshio, then for MSH 4 Gmsh's reader; for MSH 2 the
   tolerant ``$ElementData`` reader before Gmsh's (MSH 2 holds a physical tag per element, Gmsh's model one per
   entity: its reader declines a file where they differ).
-* ``.vtu``: VTK's reader, then meshio.
-* ``.vtk``: ASCII: VTK's reader, then meshio, then the tolerant reader; binary: meshio, then the tolerant reader.
+* ``.vtu``: VTK's reader (for files of :data:`VTK_MIN_BYTES` or more, or when VTK is already imported), then
+  meshio.
+* ``.vtk``: ASCII: VTK's reader (the same condition), then meshio, then the tolerant reader; binary: meshio, then
+  the tolerant reader.
 * ``.mesh``: meshio, then the tolerant Medit reader. Every other format: meshio.
 
 Whatever reads it, a file gives the same mesh (tested for every pair of readers that read the same file): the
@@ -41,6 +43,7 @@ reports it.
 from __future__ import annotations
 
 import os
+import sys
 from pathlib import Path
 
 import meshio
@@ -132,6 +135,20 @@ def _via_meshio(path: Path, fmt: str):
     return mesh
 
 
+#: VTK's readers are used for files of at least this size, or when VTK is already imported: importing them costs
+#: about 0.5 s once per process (measured), more than they save on smaller files.
+VTK_MIN_BYTES = 32 * 2**20
+
+
+def _vtk_worth(p: Path) -> bool:
+    if "vtkmodules.vtkIOXML" in sys.modules and "vtkmodules.vtkIOLegacy" in sys.modules:
+        return True
+    try:
+        return p.stat().st_size >= VTK_MIN_BYTES
+    except OSError:
+        return False
+
+
 def readers_for(path, fmt: str) -> list:
     """``[(who, function(path) -> meshio.Mesh), ...]``: the readers tried for ``path`` read as ``fmt``, in order."""
     p = Path(path)
@@ -146,10 +163,11 @@ def readers_for(path, fmt: str) -> list:
         # MSH 2 keeps a physical tag per element, which Gmsh's reader can only give per entity: tolerant first
         out.extend(tolerant + gmsh_api if _msh_version(head).startswith("2") else gmsh_api + tolerant)
     elif fmt == "vtu":
-        out.append(("vtk", lambda q: read_vtk_api(q, legacy=False)))
+        if _vtk_worth(p):
+            out.append(("vtk", lambda q: read_vtk_api(q, legacy=False)))
         out.append(("meshio", lambda q: _via_meshio(q, "vtu")))
     elif fmt == "vtk":
-        if _legacy_ascii(_head(p)):
+        if _legacy_ascii(_head(p)) and _vtk_worth(p):
             out.append(("vtk", lambda q: read_vtk_api(q, legacy=True)))
         out.append(("meshio", lambda q: _via_meshio(q, "vtk")))
         out.append(("hexsos", lambda q: read_legacy_vtk(q.read_bytes(), q)))
