@@ -7,8 +7,10 @@ twist plus noise, so that some hexes need subdivision and a few are invalid), th
 
 * in process: ``check`` with ``tracemalloc`` (peak of numpy allocations during the call) and the process's
   peak resident set size, for each ``--jobs``;
-* with ``--cli``: writes the mesh as .vtu and runs ``hexsos check`` under ``/usr/bin/time -v`` (peak RSS of
-  the whole command: reading the file, checking, printing).
+* with ``--cli``: writes the mesh as .vtu and .msh (as ``hexsos_plugins.io.write`` writes them) and runs
+  ``hexsos check`` under ``/usr/bin/time -v`` (peak RSS of the whole command: reading the file, checking,
+  printing), and a process that only reads the file and takes its orientation (what ``check`` does before the
+  kernel runs).
 """
 
 from __future__ import annotations
@@ -82,16 +84,25 @@ def main(argv=None):
     if args.cli:
         import meshio
 
+        from hexsos_plugins.io import write
+
         with tempfile.TemporaryDirectory() as tmp:
-            path = os.path.join(tmp, "big.vtu")
-            meshio.write(path, meshio.Mesh(P, [("hexahedron", H)]))
-            print(f"wrote {path} ({os.path.getsize(path) / 2**20:.0f} MB)")
-            cmd = ["/usr/bin/time", "-v", sys.executable, "-m", "hexsos_plugins", "check", path, "--json"]
-            out = subprocess.run(cmd, capture_output=True, text=True)
-            rss = re.search(r"Maximum resident set size \(kbytes\): (\d+)", out.stderr)
-            wall = re.search(r"Elapsed \(wall clock\) time.*: (\S+)", out.stderr)
-            print(f"hexsos check {len(H):,} hexes from .vtu: wall {wall.group(1) if wall else '?'}, "
-                  f"peak RSS {int(rss.group(1)) / 1024:.0f} MB" if rss else out.stderr[-500:])
+            for ext in (".vtu", ".msh"):
+                path = os.path.join(tmp, "big" + ext)
+                write(meshio.Mesh(P, [("hexahedron", H)]), path)
+                print(f"wrote {path} ({os.path.getsize(path) / 2**20:.0f} MB)")
+                for what, code in (("hexsos check", None), ("read + orientation", _READ_ONLY)):
+                    cmd = ["/usr/bin/time", "-v", sys.executable]
+                    cmd += ["-m", "hexsos_plugins", "check", path, "--json"] if code is None else ["-c", code, path]
+                    out = subprocess.run(cmd, capture_output=True, text=True)
+                    rss = re.search(r"Maximum resident set size \(kbytes\): (\d+)", out.stderr)
+                    wall = re.search(r"Elapsed \(wall clock\) time.*: (\S+)", out.stderr)
+                    print(f"{what} {len(H):,} hexes from {ext}: wall {wall.group(1) if wall else '?'}, "
+                          f"peak RSS {int(rss.group(1)) / 1024:.0f} MB" if rss else out.stderr[-500:])
+
+
+_READ_ONLY = ("import sys; from hexsos_plugins.io import read; m = read(sys.argv[1]); m.orientation(); "
+              "print(m.reader)")
 
 
 if __name__ == "__main__":

@@ -399,3 +399,75 @@ def test_boundary_excludes_shared_faces():
 def test_docstring_examples_run():
     result = doctest.testmod(mesh_module, verbose=False)
     assert result.attempted >= 1 and result.failed == 0
+
+
+# ---------------------------------------------------------------------------------------------- mixed meshes
+@pytest.fixture(scope="module")
+def gmsh_meshes(tmp_path_factory):
+    pytest.importorskip("gmsh")
+    from test_readers import write_gmsh_meshes
+
+    return write_gmsh_meshes(str(tmp_path_factory.mktemp("mixed")), kinds=("order1", "order2"))
+
+
+def test_boundary_of_a_mixed_mesh_is_the_box_surface(gmsh_meshes):
+    """Hexahedra, prisms, pyramids and tetrahedra: the faces of exactly one cell (triangles and quads) are the
+    surface of the box [0, 2] x [0, 1] x [0, 1.3]: outward, area 11.8; no interior face among them."""
+    from hexsos_plugins.io import read
+
+    m = read(gmsh_meshes["order1"]["41b"])
+    b = m.boundary(return_cell=True)
+    assert len(b["triangle"]) and len(b["quad"])
+    P = m.points
+    area, centre = 0.0, P.mean(axis=0)
+    cells_centroid = {}
+    for _, t, s, e in m.cell_blocks:
+        conn = [c for (bb, tt, ss, ee), (_, c) in zip(m.cell_blocks, m.cells) if ss == s][0]
+        cells_centroid.update(zip(range(s, e), P[conn].mean(axis=1)))
+    for kind in ("triangle", "quad"):
+        f = P[b[kind]]
+        n = np.cross(f[:, 1] - f[:, 0], f[:, 2] - f[:, 0]) if kind == "triangle" else \
+            np.cross(f[:, 2] - f[:, 0], f[:, 3] - f[:, 1])
+        area += 0.5 * np.linalg.norm(n, axis=1).sum()
+        owner = np.array([cells_centroid[c] for c in b[f"{kind}_cell"]])
+        assert (np.einsum("ij,ij->i", n, f.mean(axis=1) - owner) > 0).all()
+        on = np.isclose(f, 0) | np.isclose(f, [2.0, 1.0, 1.3])
+        assert on.all(axis=1).any(axis=1).all()  # every face lies in a face of the box
+    assert np.isclose(area, 2 * (2 * 1 + 2 * 1.3 + 1 * 1.3))
+    mask = m.boundary_vertices()
+    on_box = (np.isclose(P, 0) | np.isclose(P, [2.0, 1.0, 1.3])).any(axis=1)
+    assert np.array_equal(mask, on_box)
+    # hexahedra's own boundary quads: only those on the box, none shared with a prism or pyramid
+    faces, ids = m.boundary_faces(return_hex=True)
+    assert len(faces) and (np.isclose(P[faces], 0) | np.isclose(P[faces], [2.0, 1.0, 1.3])).all(axis=1).any(axis=1).all()
+    # negative case: the hexahedra alone have more boundary quads (their faces against prisms and pyramids)
+    alone = HexMesh.from_arrays(P, m.hexes).boundary_faces()
+    assert len(alone) > len(faces)
+
+
+def test_boundary_vertices_of_quadratic_cells_include_edge_and_face_nodes(gmsh_meshes):
+    from hexsos_plugins.io import read
+
+    m = read(gmsh_meshes["order2"]["41b"])
+    mask = m.boundary_vertices()
+    bottom = np.unique(np.concatenate([b.data.ravel() for b in m.source.cells if b.type in ("triangle6", "quad9")]))
+    assert mask[bottom].all()  # every node of the bottom faces, mid-edge and mid-face nodes included
+    centres = np.concatenate([c[:, 26] for t, c in m.cells if t == "hexahedron27"])
+    assert not mask[centres].any()  # negative case: the hexahedra's centre nodes are inside
+
+
+def test_orientation_and_flip_per_type():
+    pts = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1], [1, 0, 1], [0, 1, 1]], float)
+    m = HexMesh.from_cells(pts, [("tetra", [[0, 1, 2, 3]]), ("wedge", [[0, 2, 1, 3, 5, 4]])])
+    assert m.orientations() == {"tetra": "right-handed", "wedge": "left-handed"}
+    assert m.orientation() == "mixed" and m.left_handed_types() == ["wedge"]
+    fixed = m.flipped(m.left_handed_types())
+    assert fixed.orientation() == "right-handed"
+    assert np.array_equal(fixed.cells[0][1], m.cells[0][1])  # the tetra is left alone
+    with pytest.raises(InvalidInputError, match="cell_types"):
+        m.flipped(["nonsense"])
+    # arrays over all cells go onto the checked blocks
+    out = m.to_meshio(cell_data={"x": np.array([1.0, 2.0])})
+    assert [a.tolist() for a in out.cell_data["x"]] == [[1.0], [2.0]]
+    with pytest.raises(InvalidInputError, match="M = 2"):
+        m.to_meshio(cell_data={"x": np.zeros(3)})
