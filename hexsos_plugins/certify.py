@@ -1,59 +1,58 @@
-"""The validity pipeline: Bernstein screen -> branch-and-bound -> SOS where needed -> proven verdicts.
+"""The validity pipeline: compiled kernel -> SOS where a hex's bracket stays open -> exact decisions.
 
-``check(points, hexes)`` returns, for every hex, the minimum of det J over the parameter cube, where it
-occurs, a proven lower bound, and a verdict that is a proof:
+``check(points, cells)`` returns, for every 3-D cell, the minimum of det J over its reference element
+(pyramids: of det J / (1 - t)^2, see :mod:`hexsos_plugins.elements`), where it occurs, a proven lower bound,
+and a verdict that is a proof:
 
-* ``1`` **valid**: a lower bound > 0 is proven. Lower bounds come from Bernstein coefficients with a
-  rigorous bound on their floating-point rounding (see :func:`hexsos_plugins.hexahedron.det_bernstein`),
-  from an SOS certificate whose residual is bounded on the cube (:meth:`SOSSolver.certified_lower`), or,
-  for hexes whose bound lies inside the rounding error, from the Bernstein coefficients computed in exact
-  rational arithmetic.
-* ``0`` **invalid**: a witness point (``argmin``) has det J <= 0: its computed value plus its rounding
-  bound is <= 0, or its exact rational value is <= 0.
-* ``-1`` **undecided**: neither could be proven. A *flat* hex (det J is nowhere larger than
-  ``flat_rtol`` times the product of its edge lengths: no sign of det J means anything for coordinates in
-  float64) is always undecided, and fast.
+* ``1`` **valid**: a lower bound > 0 is proven: the kernel's Bernstein bound with its rounding and underflow
+  terms subtracted (:mod:`hexsos_plugins.kernel`), an SOS certificate whose residual is bounded on the cube
+  (:meth:`hexsos_plugins.sos.SOSSolver.certified_lower`, trilinear hexahedra), or exact rational arithmetic on
+  the input coordinates (:mod:`hexsos_plugins.exact`) where the float bounds cannot decide.
+* ``0`` **invalid**: a witness point (``argmin``) has det J <= 0: its computed value plus its rounding bound
+  is <= 0, or its exact value is <= 0.
+* ``-1`` **undecided**: neither could be proven. A *flat* cell (det J nowhere larger than ``flat_rtol`` times
+  the size of its terms, a measure that scales with det J under any scaling of the axes) is undecided at once;
+  so is the rare cell exact arithmetic cannot settle within its budget.
 
-``min_det`` is det J at ``argmin``; with ``method="auto"`` it is exact to ``rtol`` (default 1e-9) times the
-hex's scale (its largest |Bernstein coefficient|): ``min_det - lower_bound <= rtol * scale`` is *proven*
-for every hex whose bracket closed (``gap`` reports it; all hexes in the measurements of the README).
+``min_det`` is det J at ``argmin``; ``min_det - lower_bound`` (``gap``) is at most ``rtol`` (default 1e-9)
+times the cell's scale (its largest |Bernstein coefficient|) wherever the bracket closed.
+
+Units. The kernel scales each cell by a power of two so that nothing overflows or underflows; values are
+scaled back exactly where float64 can hold them. Where it cannot (det J beyond ~1e308, or below ~5e-324 in
+magnitude), ``min_det`` is the nearest float of the same sign (at most the largest float, at least the
+smallest subnormal), ``lower_bound`` the largest float below the proven bound (possibly 0.0 or -inf), and
+``unrepresentable`` is set; verdicts are proven in the scaled units and are not affected.
 """
 
 from __future__ import annotations
 
-import math
 import time
+from contextlib import contextmanager, nullcontext
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from .bernstein import _CORNER_UVW, CORNER_COEFFS, bracket, polish
+from .elements import CELL_TYPES, ELEMENTS, VOXEL_TO_VTK
 from .errors import InvalidInputError, NoHexahedraError
-from .hexahedron import (
-    UNIT_ROUND,
-    bernstein_exact,
-    bernstein_to_monomial,
-    det_at,
-    det_at_bernstein,
-    det_bernstein,
-    det_exact,
-    gather_t,
-)
 
-__all__ = ["check", "CheckResult", "METHOD_NAMES", "STATUS_NAMES", "SOS_STATUS_NAMES", "validate_arrays"]
+__all__ = ["check", "CheckResult", "METHOD_NAMES", "STATUS_NAMES", "SOS_STATUS_NAMES", "validate_arrays",
+           "validate_cells", "HEX_TYPES"]
 
-#: Names of the codes in ``CheckResult.method``: what settled each hex.
+#: Names of the codes in ``CheckResult.method``: what settled each cell.
 METHOD_NAMES = ("bernstein", "subdivision", "sos", "exact", "flat")
 _BERNSTEIN, _SUBDIVISION, _SOS, _EXACT, _FLAT = range(5)
 #: Names of the verdict codes in ``CheckResult.status``.
 STATUS_NAMES = {1: "valid", 0: "invalid", -1: "undecided"}
-#: Names of the codes in ``CheckResult.sos_status`` (0: SOS did not run on that hex).
+#: Names of the codes in ``CheckResult.sos_status`` (0: SOS did not run on that cell).
 SOS_STATUS_NAMES = ("", "Solved", "AlmostSolved", "MaxIterations", "MaxTime", "NumericalError",
                     "InsufficientProgress", "PrimalInfeasible", "DualInfeasible", "AlmostPrimalInfeasible",
                     "AlmostDualInfeasible", "CallbackTerminated", "Unsolved", "other")
+#: The hexahedral cell types (``CheckResult.to_dict()["hexes"]`` counts them).
+HEX_TYPES = ("hexahedron", "hexahedron20", "hexahedron27")
 
-_CHUNK = 32768  # measured: larger chunks amortize the branch-and-bound over more open hexes; past 32768 the
-# coefficient arrays fall out of cache (8192 .. 131072 tried on random, ring and twisted-grid meshes)
+_SLICE = 65536  # cells per kernel call (progress between calls; the kernel itself works in chunks of 512)
+_MAX_FLOAT = np.finfo(np.float64).max
+_TINY = 5e-324
 
 
 def _sos_code(status: str) -> int:
@@ -62,19 +61,21 @@ def _sos_code(status: str) -> int:
 
 @dataclass
 class CheckResult:
-    """Per-hex results of :func:`check` (arrays of length M, the number of hexes), plus a summary.
+    """Per-cell results of :func:`check` (arrays of length M, the number of cells), plus a summary.
 
     Attributes
     ----------
-    min_det : (M,) float64, the minimum of det J over [0, 1]^3, equal to det J at ``argmin``
+    min_det : (M,) float64, the minimum of det J over the reference element, equal to det J at ``argmin``
     lower_bound : (M,) float64, a proven lower bound of that minimum
-    argmin : (M, 3) float64, where the minimum occurs, in parameter coordinates (u, v, w)
+    argmin : (M, 3) float64, where the minimum occurs, in VTK's parametric coordinates
     status : (M,) int8, 1 valid, 0 invalid, -1 undecided
-    corner_min_det : (M,) float64, the smallest det J at the 8 corners (what corner checks see)
-    method : (M,) int8, index into :data:`METHOD_NAMES`: what settled the hex
+    corner_min_det : (M,) float64, the smallest det J at the cell's corner nodes (what corner checks see)
+    method : (M,) int8, index into :data:`METHOD_NAMES`: what settled the cell
     recovery_ratio : (M,) float64, lambda_2 / lambda_1 of the moment matrix where SOS ran, else NaN
     sos_status : (M,) int8, index into :data:`SOS_STATUS_NAMES` (0 where SOS did not run)
-    scale : (M,) float64, the hex's scale, its largest |Bernstein coefficient| of det J
+    scale : (M,) float64, the cell's scale, its largest |Bernstein coefficient| of det J
+    cell_type : (M,) int8, index into :data:`hexsos_plugins.elements.CELL_TYPES`
+    unrepresentable : (M,) bool, min_det or lower_bound lies beyond float64's range in the input's units
     """
 
     min_det: np.ndarray
@@ -86,12 +87,21 @@ class CheckResult:
     recovery_ratio: np.ndarray
     sos_status: np.ndarray
     scale: np.ndarray
+    cell_type: np.ndarray = None
+    unrepresentable: np.ndarray = None
     seconds: float = 0.0
     method_requested: str = "auto"
     relaxation: str = "quad2"
     sos_solves: int = 0
     boxes: int = 0
     extra: dict = field(default_factory=dict)
+
+    def __post_init__(self):
+        m = int(self.status.shape[0])
+        if self.cell_type is None:
+            self.cell_type = np.full(m, CELL_TYPES.index("hexahedron"), dtype=np.int8)
+        if self.unrepresentable is None:
+            self.unrepresentable = np.zeros(m, dtype=bool)
 
     def __len__(self) -> int:
         return int(self.status.shape[0])
@@ -116,22 +126,27 @@ class CheckResult:
 
     @property
     def invalid_inside_only(self) -> np.ndarray:
-        """Invalid hexes that are valid at all 8 corners: the ones corner checks miss."""
+        """Invalid cells that are valid at all their corners: the ones corner checks miss."""
         return (self.status == 0) & (self.corner_min_det > 0)
 
     @property
     def worst(self) -> int:
-        """Index of the hex with the smallest min_det (-1 for an empty result)."""
+        """Index of the cell with the smallest min_det (-1 for an empty result)."""
         if len(self) == 0:
             return -1
         return int(np.nanargmin(self.min_det))
+
+    def cell_type_names(self) -> np.ndarray:
+        return np.array(CELL_TYPES, dtype=object)[self.cell_type]
 
     def method_names(self) -> np.ndarray:
         return np.array(METHOD_NAMES, dtype=object)[self.method]
 
     def counts(self) -> dict:
+        hexes = int(np.isin(self.cell_type, [CELL_TYPES.index(t) for t in HEX_TYPES]).sum())
         return {
-            "hexes": len(self),
+            "cells": len(self),
+            "hexes": hexes,
             "valid": int(self.valid.sum()),
             "invalid": int(self.invalid.sum()),
             "undecided": int(self.undecided.sum()),
@@ -139,20 +154,41 @@ class CheckResult:
             "flat": int((self.method == _FLAT).sum()),
         }
 
+    def by_type(self) -> dict:
+        """Per cell type present: cells, valid, invalid, invalid_inside_only, undecided, min_det, worst_cell."""
+        out = {}
+        for code in np.unique(self.cell_type):
+            sel = np.flatnonzero(self.cell_type == code)
+            w = int(sel[np.nanargmin(self.min_det[sel])])
+            out[CELL_TYPES[int(code)]] = {
+                "cells": int(sel.size),
+                "valid": int((self.status[sel] == 1).sum()),
+                "invalid": int((self.status[sel] == 0).sum()),
+                "invalid_inside_only": int(self.invalid_inside_only[sel].sum()),
+                "undecided": int((self.status[sel] == -1).sum()),
+                "min_det": float(self.min_det[w]),
+                "worst_cell": w,
+            }
+        return out
+
     def to_dict(self) -> dict:
-        """A JSON-ready summary (no per-hex arrays)."""
+        """A JSON-ready summary (no per-cell arrays)."""
         w = self.worst
         d = self.counts()
+        rel = self.gap / np.where(self.scale > 0, self.scale, 1.0)
         d.update({
             "min_det": float(self.min_det[w]) if w >= 0 else None,
             "worst_hex": w,
+            "worst_cell": w,
             "worst_argmin": [float(t) for t in self.argmin[w]] if w >= 0 else None,
-            "max_gap_relative": float(np.max(self.gap / np.where(self.scale > 0, self.scale, 1.0))) if w >= 0 else None,
+            "max_gap_relative": float(np.nanmax(rel)) if w >= 0 else None,
             "seconds": round(float(self.seconds), 6),
             "method": self.method_requested,
             "relaxation": self.relaxation,
             "settled_by": {name: int((self.method == i).sum()) for i, name in enumerate(METHOD_NAMES)},
             "sos_solves": int(self.sos_solves),
+            "unrepresentable": int(self.unrepresentable.sum()),
+            "by_type": self.by_type(),
         })
         return d
 
@@ -169,47 +205,62 @@ class CheckResult:
     def summary(self) -> str:
         """A human-readable summary (several lines)."""
         c = self.counts()
-        n = max(c["hexes"], 1)
+        n = max(c["cells"], 1)
+        bt = self.by_type()
+        what = "hexes" if set(bt) == {"hexahedron"} else "cells"
         lines = [
-            f"hexes      {c['hexes']}",
+            f"{what:<10} {c['cells']}" + ("" if what == "hexes" else
+                                         " (" + ", ".join(f"{v['cells']} {k}" for k, v in bt.items()) + ")"),
             f"valid      {c['valid']} ({100.0 * c['valid'] / n:.2f}%)",
             f"invalid    {c['invalid']} ({100.0 * c['invalid'] / n:.2f}%), of which {c['invalid_inside_only']} "
-            "invalid inside only (valid at all 8 corners)",
+            "invalid inside only (valid at all corners)",
             f"undecided  {c['undecided']}" + (f" ({c['flat']} flat)" if c["flat"] else ""),
         ]
+        if what == "cells":
+            for k, v in bt.items():
+                lines.append(f"  {k:<13} {v['cells']:>8} cells: {v['invalid']} invalid ({v['invalid_inside_only']} "
+                             f"inside only), {v['undecided']} undecided, min det J {v['min_det']:.6g}")
         w = self.worst
         if w >= 0:
             u, v, t = self.argmin[w]
-            lines.append(f"min det J  {self.min_det[w]:.9g} in hex {w} at (u, v, w) = ({u:.6f}, {v:.6f}, {t:.6f})")
+            name = "" if what == "hexes" else f" ({CELL_TYPES[int(self.cell_type[w])]})"
+            lines.append(f"min det J  {self.min_det[w]:.9g} in {what[:-1] if what == 'cells' else 'hex'} {w}{name} at "
+                         f"(u, v, w) = ({u:.6f}, {v:.6f}, {t:.6f})")
         settled = ", ".join(f"{name} {k}" for name, k in self.to_dict()["settled_by"].items() if k)
         lines.append(f"settled by {settled}")
-        lines.append(f"time       {self.seconds:.3f} s ({len(self) / max(self.seconds, 1e-9):,.0f} hexes/s)")
+        lines.append(f"time       {self.seconds:.3f} s ({len(self) / max(self.seconds, 1e-9):,.0f} {what}/s)")
         return "\n".join(lines)
 
     def __repr__(self) -> str:
         c = self.counts()
-        return (f"CheckResult(hexes={c['hexes']}, valid={c['valid']}, invalid={c['invalid']}, "
+        return (f"CheckResult(cells={c['cells']}, valid={c['valid']}, invalid={c['invalid']}, "
                 f"undecided={c['undecided']}, invalid_inside_only={c['invalid_inside_only']})")
 
     _ARRAYS = (("min_det", np.float64, ()), ("lower_bound", np.float64, ()), ("argmin", np.float64, (3,)),
                ("status", np.int8, ()), ("corner_min_det", np.float64, ()), ("method", np.int8, ()),
-               ("recovery_ratio", np.float64, ()), ("sos_status", np.int8, ()), ("scale", np.float64, ()))
+               ("recovery_ratio", np.float64, ()), ("sos_status", np.int8, ()), ("scale", np.float64, ()),
+               ("cell_type", np.int8, ()), ("unrepresentable", np.bool_, ()))
 
     @classmethod
     def empty(cls, m: int, **kw) -> "CheckResult":
-        """A result for m hexes to be filled block by block with :meth:`put`."""
+        """A result for m cells to be filled block by block with :meth:`put`."""
         return cls(**{name: np.empty((m,) + shape, dtype=dt) for name, dt, shape in cls._ARRAYS}, **kw)
 
-    def put(self, where: slice, part: "CheckResult") -> None:
-        """Copy the arrays of ``part`` (the result of the hexes ``where``) into this result."""
+    def put(self, where, part: "CheckResult") -> None:
+        """Copy the arrays of ``part`` (the result of the cells ``where``) into this result."""
         for name, _, _ in self._ARRAYS:
             getattr(self, name)[where] = getattr(part, name)
         self.sos_solves += part.sos_solves
         self.boxes += part.boxes
 
+    def take(self, idx) -> "CheckResult":
+        """The result of the cells ``idx`` (an index array or mask)."""
+        return CheckResult(**{name: getattr(self, name)[idx] for name, _, _ in self._ARRAYS},
+                           method_requested=self.method_requested, relaxation=self.relaxation)
+
     @classmethod
     def concatenate(cls, parts) -> "CheckResult":
-        """Join results of consecutive blocks of hexes."""
+        """Join results of consecutive blocks of cells."""
         first = parts[0]
         out = cls.empty(sum(len(p) for p in parts), method_requested=first.method_requested,
                         relaxation=first.relaxation)
@@ -221,133 +272,97 @@ class CheckResult:
         return out
 
 
-def validate_arrays(points, hexes):
-    """Check and convert ``points`` (N, 3) and ``hexes`` (M, 8); raise typed errors that say what is wrong."""
+# --- input validation ----------------------------------------------------------------------------------------------
+def _points(points) -> np.ndarray:
     try:
         P = np.asarray(points, dtype=np.float64)
     except (TypeError, ValueError) as exc:
         raise InvalidInputError(f"points: expected an array of numbers of shape (N, 3), could not convert: {exc}") from exc
     if P.ndim != 2 or P.shape[1] != 3:
         raise InvalidInputError(f"points: expected shape (N, 3), found {P.shape}")
-    H = np.asarray(hexes)
-    if H.ndim != 2 or H.shape[1] != 8:
+    return np.ascontiguousarray(P)
+
+
+def _indices(conn, what, n_nodes, n_points) -> np.ndarray:
+    H = np.asarray(conn)
+    if H.ndim != 2 or H.shape[1] != n_nodes:
         if H.size == 0:
-            raise NoHexahedraError("no hexahedra given: expected hexes of shape (M, 8) with M >= 1, found an empty array")
-        raise InvalidInputError(f"hexes: expected shape (M, 8), found {H.shape}")
+            raise NoHexahedraError(f"no cells given: expected {what} of shape (M, {n_nodes}) with M >= 1, found an "
+                                   "empty array")
+        raise InvalidInputError(f"{what}: expected shape (M, {n_nodes}), found {H.shape}")
     if H.shape[0] == 0:
-        raise NoHexahedraError("no hexahedra given: expected hexes of shape (M, 8) with M >= 1, found M = 0")
+        raise NoHexahedraError(f"no cells given: expected {what} of shape (M, {n_nodes}) with M >= 1, found M = 0")
     if not np.issubdtype(H.dtype, np.integer):
         if np.issubdtype(H.dtype, np.floating) and np.all(np.isfinite(H)) and np.all(H == np.round(H)):
             H = H.astype(np.int64)
         else:
-            raise InvalidInputError(f"hexes: expected integer node indices, found dtype {H.dtype}")
-    H = H.astype(np.int64, copy=False)
-    bad = (H < 0) | (H >= P.shape[0])
+            raise InvalidInputError(f"{what}: expected integer node indices, found dtype {H.dtype}")
+    H = np.ascontiguousarray(H, dtype=np.int64)
+    bad = (H < 0) | (H >= n_points)
     if bad.any():
         m = int(np.flatnonzero(bad.any(axis=1))[0])
-        raise InvalidInputError(f"hexes: node index out of range in hex {m}: {H[m].tolist()} (there are {P.shape[0]} points)")
+        raise InvalidInputError(f"{what}: node index out of range in cell {m}: {H[m].tolist()} (there are {n_points} "
+                                "points)")
+    return H
+
+
+def _finite(P, H, what):
     fin = np.isfinite(P).all(axis=1)
     if not fin.all():  # unreferenced points may be anything; referenced ones must be finite
         ok = fin[H]
         if not ok.all():
             m = int(np.flatnonzero(~ok.all(axis=1))[0])
             i = int(H[m][~ok[m]][0])
-            raise InvalidInputError(f"points: expected finite coordinates, found {P[i].tolist()} at point {i} (hex {m})")
+            raise InvalidInputError(f"points: expected finite coordinates, found {P[i].tolist()} at point {i} "
+                                    f"({what} {m})")
+
+
+def validate_arrays(points, hexes):
+    """Check and convert ``points`` (N, 3) and ``hexes`` (M, 8); raise typed errors that say what is wrong."""
+    P = _points(points)
+    H = _indices(hexes, "hexes", 8, P.shape[0])
+    _finite(P, H, "hex")
     return P, H
 
 
-def check(points, hexes, *, method: str = "auto", relaxation: str = "quad2", rtol: float = 1e-9,
-          flat_rtol: float = 1e-12, max_depth: int = 30, max_boxes: int = 64, sos_tol: float = 1e-8,
-          sos_max_iter: int = 100, progress=None, chunk_size: int = _CHUNK, jobs: int = 1, scheduler=None,
-          block_size: int | None = None, executor=None) -> CheckResult:
-    """Certified validity of every hex: exact min det J, where it occurs, and a proven verdict.
+def validate_cells(points, cells):
+    """Check and convert ``points`` and ``cells`` for :func:`check`.
 
-    Parameters
-    ----------
-    points : array_like, shape (N, 3)
-    hexes : array_like of int, shape (M, 8), VTK node order (see :mod:`hexsos_plugins.hexahedron`)
-    method : {"auto", "sos"}, keyword-only
-        ``"auto"`` (default) screens every hex with Bernstein bounds, refines by branch-and-bound, and
-        runs the SOS relaxation only where the bracket stays open. ``"sos"`` runs the SOS relaxation on
-        every hex, as the paper does (argmin from the moments, polished); verdicts still need a proof.
-    relaxation : {"quad2", "paper"}, keyword-only
-        The SOS relaxation (see :data:`hexsos_plugins.sos.RELAXATIONS`). Default ``"quad2"``.
-    rtol : float, keyword-only
-        Bracket width sought, relative to each hex's scale. Default 1e-9.
-    flat_rtol : float, keyword-only
-        A hex whose det J is nowhere larger than ``flat_rtol`` times the product of its largest edge
-        lengths is flat: undecided. Default 1e-12.
-    max_depth, max_boxes : int, keyword-only
-        Limits of the branch-and-bound (subdivision depth, boxes per hex). Defaults 30 and 64.
-    sos_tol : float, keyword-only
-        Clarabel's tolerances. Default 1e-8.
-    sos_max_iter : int, keyword-only
-        Clarabel's iteration cap. Default 100. A solve that ends in any status but ``Solved`` gives no
-        bound and no argmin: the hex is then decided by the other proofs or stays undecided.
-    progress : callable(done, total), optional
-        Called after each chunk of hexes (and each SOS solve batch) with the hexes done so far.
-    chunk_size : int, keyword-only
-        Hexes processed at once (bounds memory and keeps the arrays in cache). Default 32768.
-    jobs : int, keyword-only
-        Worker processes (0: one per core). Default 1: in this process.
-    scheduler : dask.distributed.Client or str, optional
-        Run on a Dask cluster (a client, or a scheduler address such as ``"tcp://host:8786"``).
-    block_size : int, optional
-        Hexes per task with ``jobs > 1`` or a scheduler (default: about four tasks per worker, at most
-        65536 hexes each). Each task carries only its hexes' vertex coordinates.
-    executor : optional
-        An open executor of :func:`hexsos_plugins.parallel.executor` to use instead of ``jobs`` and
-        ``scheduler`` (callers that check many times, like the repair, reuse one pool or cluster connection).
-
-    Returns
-    -------
-    CheckResult
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> from hexsos_plugins import check
-    >>> cube = np.array([[0,0,0],[1,0,0],[1,1,0],[0,1,0],[0,0,1],[1,0,1],[1,1,1],[0,1,1]], float)
-    >>> r = check(cube, [range(8)])
-    >>> int(r.status[0]), float(r.min_det[0])
-    (1, 1.0)
-    """
-    if method not in ("auto", "sos"):
-        raise InvalidInputError(f"method: expected 'auto' or 'sos', found {method!r}")
-    from .sos import RELAXATIONS  # light import; the solver is built only when needed
-
-    if relaxation not in RELAXATIONS:
-        raise InvalidInputError(f"relaxation: expected one of {sorted(RELAXATIONS)}, found {relaxation!r}")
-    P, H = validate_arrays(points, hexes)
-    t0 = time.perf_counter()
-    M = H.shape[0]
-    opts = _Options(method, relaxation, rtol, flat_rtol, max_depth, max_boxes, sos_tol, sos_max_iter,
-                    max(1, int(chunk_size)))
-    PT = np.ascontiguousarray(P.T)
-    from contextlib import nullcontext
-
-    from .parallel import executor as make_executor
-
-    result = CheckResult.empty(M, method_requested=method, relaxation=relaxation)
-    with (nullcontext(executor) if executor is not None else make_executor(jobs, scheduler)) as ex:
-        # in this process: chunk by chunk; elsewhere: blocks of about four per worker, each carrying only
-        # its hexes' vertex coordinates (gathered lazily, a bounded number in flight)
-        size = opts.chunk if ex.workers == 1 else (block_size or max(opts.chunk, min(65536, -(-M // (4 * ex.workers)))))
-        starts = range(0, M, size)
-        blocks = (gather_t(PT, H[s : s + size]) for s in starts)
-        done = 0
-        for k, part in ex.imap(_check_block, blocks, opts):
-            result.put(slice(starts[k], starts[k] + len(part)), part)
-            done += len(part)
-            if progress is not None:
-                progress(done, M)
-    result.seconds = time.perf_counter() - t0
-    return result
+    ``cells`` is an (M, 8) integer array (trilinear hexahedra), a sequence of ``(cell_type, conn)`` pairs or a
+    mapping ``{cell_type: conn}``; ``cell_type`` a name of :data:`hexsos_plugins.elements.CELL_TYPES` (or
+    ``"voxel"``, converted to a hexahedron), ``conn`` (M_t, n_t) in VTK node order.
+    Returns ``(points (N, 3), [(cell_type, conn (M_t, n_t) int64), ...])``."""
+    P = _points(points)
+    if isinstance(cells, dict):
+        pairs = list(cells.items())
+    elif isinstance(cells, (list, tuple)) and cells and isinstance(cells[0], (list, tuple)) and len(cells[0]) == 2 \
+            and isinstance(cells[0][0], str):
+        pairs = list(cells)
+    else:
+        return P, [("hexahedron", validate_arrays(P, cells)[1])]
+    blocks = []
+    for name, conn in pairs:
+        if not isinstance(name, str):
+            raise InvalidInputError(f"cells: expected (cell_type, connectivity) pairs, found a {type(name).__name__} "
+                                    "as cell type")
+        key = "hexahedron" if name == "voxel" else name
+        if key not in ELEMENTS:
+            raise InvalidInputError(f"cells: cell type {name!r} is not one hexsos checks; expected one of "
+                                    f"{', '.join(CELL_TYPES)} (or voxel)")
+        H = _indices(conn, f"{name} cells", ELEMENTS[key].n_nodes, P.shape[0])
+        if name == "voxel":
+            H = np.ascontiguousarray(H[:, VOXEL_TO_VTK])
+        _finite(P, H, name)
+        blocks.append((key, H))
+    if not blocks:
+        raise NoHexahedraError("no cells given: expected at least one block of 3-D cells, found none")
+    return P, blocks
 
 
+# --- the pipeline ----------------------------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class _Options:
-    """The options of one check, sent with every block of hexes to wherever it runs."""
+    """The options of one check, sent with every block of cells to wherever it runs."""
 
     method: str
     relaxation: str
@@ -357,7 +372,7 @@ class _Options:
     max_boxes: int
     sos_tol: float
     sos_max_iter: int
-    chunk: int
+    exact_boxes: int
 
 
 _SOLVERS = {}  # one SOSSolver per process and setting, reused across blocks
@@ -372,160 +387,312 @@ def _solver(opts: _Options):
     return _SOLVERS[key]
 
 
-def _check_block(X, opts: _Options) -> CheckResult:
-    """Check the hexes of a block of vertex coordinates X (3, 8, m), in cache-sized chunks."""
-    m = X.shape[2]
-    parts = [_check_chunk(X[:, :, s : s + opts.chunk], opts) for s in range(0, m, opts.chunk)]
-    return CheckResult.concatenate(parts) if len(parts) > 1 else parts[0]
+@contextmanager
+def _threads(jobs):
+    """numba's thread count for the kernel calls inside the block (restored afterwards)."""
+    import numba
+
+    limit = numba.config.NUMBA_NUM_THREADS
+    want = limit if jobs == 0 else max(1, min(int(jobs), limit))
+    old = numba.get_num_threads()
+    numba.set_num_threads(want)
+    try:
+        yield want
+    finally:
+        numba.set_num_threads(old)
 
 
-def _check_chunk(X, ctx: _Options) -> CheckResult:
-    # Scale each hex by a power of two (exact) so that its extent is about 1: det J can then neither
-    # overflow nor underflow whatever the units (coordinates near 1e+-300 included), and every value is
-    # scaled back exactly (ldexp) at the end.
-    extent = (X.max(axis=1) - X.min(axis=1)).max(axis=0)
-    _, e = np.frexp(extent)
-    X = X * np.ldexp(1.0, -e)[None, None, :]  # times a power of two: exact
-    stats = {}
-    B, err = det_bernstein(X, layout="soa", stats=stats)
-    m = X.shape[2]
-    scale = stats["max_abs"]
-    edge_scale = err / (1024.0 * UNIT_ROUND)  # product of the largest edge L1 norms per direction
-    flat = scale <= ctx.flat_rtol * edge_scale
-    corner_min = stats["corner_min"]
-    at_root_corner = np.ones(m, dtype=bool)  # argmin is still the root's best corner (its value: corner_min)
-    method = np.full(m, _BERNSTEIN, dtype=np.int8)
-    ratio = np.full(m, np.nan)
-    sos_status = np.zeros(m, dtype=np.int8)
+def _to_world(v, k3, *, down: bool):
+    """Scaled values times 2^k3: exact where representable; else the nearest float of the same sign
+    (``down=False``) or the largest float below (``down=True``). Returns (values, unrepresentable)."""
+    with np.errstate(over="ignore", under="ignore", invalid="ignore"):
+        w = np.ldexp(v, k3)
+        back = np.ldexp(w, -k3)
+    inexact = np.isfinite(w) & (back != v)
+    over = ~np.isfinite(w) & np.isfinite(v)
+    if down:
+        lower = inexact & (back > v)
+        w[lower] = np.nextafter(w[lower], -np.inf)
+        w[over & (v > 0)] = _MAX_FLOAT
+        w[over & (v < 0)] = -np.inf
+        bad = over | (inexact & (np.abs(w) < 2.0**-1022))
+    else:
+        zero = (w == 0) & (v != 0)
+        w[zero] = np.copysign(_TINY, v[zero])
+        w[over] = np.copysign(_MAX_FLOAT, v[over])
+        bad = over | zero
+    return w, bad
+
+
+def _check_block(P, conn, name, opts: _Options, progress=None, offset=0, total=None) -> CheckResult:
+    """Check the cells conn (M, n) of one type; the whole pipeline, in this process."""
+    from . import kernel
+
+    t0 = time.perf_counter()
+    M = conn.shape[0]
+    keys = ("lower", "value", "argmin", "err", "scale", "corner", "depth", "closed", "flat", "k", "boxes", "lowroot")
+    r = {k: [] for k in keys}
+    for s in range(0, M, _SLICE):
+        ids = np.arange(s, min(s + _SLICE, M))
+        part = kernel.run_cells(P, conn, ids, name, rtol=opts.rtol, flat_rtol=opts.flat_rtol,
+                                max_depth=opts.max_depth, max_iter=opts.max_boxes)
+        for k in keys:
+            r[k].append(part[k])
+        if progress is not None:
+            progress(offset + ids[-1] + 1, total if total is not None else M)
+    r = {k: (np.concatenate(v) if len(v) > 1 else v[0]) for k, v in r.items()}
+    lower, value, argmin, err = r["lower"], r["value"], r["argmin"], r["err"]
+    scale, flat = r["scale"], r["flat"]
+    method = np.where(r["depth"] > 0, _SUBDIVISION, _BERNSTEIN).astype(np.int8)
+    ratio = np.full(M, np.nan)
+    sos_status = np.zeros(M, dtype=np.int8)
     sos_solves = 0
+    boxes = int(r["boxes"].sum())
 
-    if ctx.method == "auto":
-        br = bracket(B, err, rtol=ctx.rtol, max_depth=ctx.max_depth, max_boxes=ctx.max_boxes, stats=stats)
-        lower, argmin, boxes = br.lower, br.argmin, br.boxes
-        method[br.depth > 0] = _SUBDIVISION
-        at_root_corner[br.depth > 0] = False
-        refine = np.flatnonzero(br.depth > 0)
-        if refine.size:
-            x, _ = polish(B[:, refine], argmin[refine])
-            argmin[refine] = x
-        open_ = np.flatnonzero(~br.closed & ~flat)
-        if open_.size:
-            sos_solves = _run_sos(ctx, B, err, open_, argmin, lower, ratio, sos_status)
-            method[open_] = _SOS
-            at_root_corner[open_] = False
-    else:  # "sos": the relaxation on every hex, then proofs
-        lower = np.full(m, -np.inf)
-        argmin = np.zeros((m, 3))
-        argmin[:] = _CORNER_UVW[stats["corner_arg"]]
+    if name == "hexahedron" and opts.method == "sos":
         idx = np.flatnonzero(~flat)
-        sos_solves = _run_sos(ctx, B, err, idx, argmin, lower, ratio, sos_status)
-        method[:] = _SOS
-        at_root_corner[idx] = False
-        lower = np.maximum(lower, stats["min"] - err)  # the root Bernstein bound holds too
-        boxes = 0
+        lower[:] = r["lowroot"]
+        sos_solves, boxes = _sos_everything(P, conn, idx, opts, lower, value, argmin, err, scale, ratio, sos_status,
+                                            method, r, boxes)
+    elif name == "hexahedron":
+        open_ = np.flatnonzero(~r["closed"] & ~flat)
+        if open_.size:
+            sos_solves = _run_sos(P, conn, open_, opts, lower, value, argmin, err, ratio, sos_status)
+            method[open_] = _SOS
 
-    # det J at argmin: where argmin is the root's best corner, its corner coefficient is that value (the same
-    # triple product of edge vectors as det_at computes there); elsewhere evaluate it from the vertices
-    perr = err.copy()
-    min_det = corner_min.copy()
-    inside = np.flatnonzero(~at_root_corner)
-    if inside.size:
-        min_det[inside], perr[inside] = det_at(X[:, :, inside], argmin[inside], layout="soa")
-    # a lower bound never exceeds a value: where rounding would say so, the value is the bound
-    lower = np.minimum(lower, min_det + perr)
-    status = np.full(m, -1, dtype=np.int8)
+    status = np.full(M, -1, dtype=np.int8)
     status[lower > 0] = 1
-    status[min_det + perr <= 0] = 0
-
-    if ctx.method == "sos":
-        # where SOS gave no usable minimum (any status but Solved), no verdict, or a certified bound that
-        # disagrees with the polished value (several minimizers, inexact relaxation), the branch-and-bound
-        # finds the minimum and the proof
-        todo = np.flatnonzero(~flat & ((status == -1) | (sos_status != 1) | (min_det - lower > 1e-6 * scale)))
-        if todo.size:
-            br = bracket(B[:, todo], err[todo], rtol=ctx.rtol, max_depth=ctx.max_depth, max_boxes=ctx.max_boxes)
-            boxes += br.boxes
-            better = br.upper < min_det[todo]
-            if better.any():
-                x, _ = polish(B[:, todo[better]], br.argmin[better])
-                argmin[todo[better]] = x
-            lower[todo] = np.maximum(lower[todo], br.lower)
-            min_det[todo], perr[todo] = det_at(X[:, :, todo], argmin[todo], layout="soa")
-            lower[todo] = np.minimum(lower[todo], min_det[todo] + perr[todo])
-            status[todo[lower[todo] > 0]] = 1
-            status[todo[min_det[todo] + perr[todo] <= 0]] = 0
-            method[todo] = _SUBDIVISION
-
-    # signs within the rounding bound (the witness's value, or the smallest root coefficient, closer to 0 than
-    # its error bound): decide in exact rational arithmetic
-    near = np.flatnonzero((status == -1) & ~flat & ((min_det - perr <= 0) | (np.abs(stats["min"]) <= err)))
-    for i in near:
-        s = _exact_decision(X[:, :, i].T, argmin[i])
-        if s is not None:
-            status[i], lo, witness, value = s
-            method[i] = _EXACT
-            if lo is not None:
-                lower[i] = max(lower[i], lo)
-            if witness is not None:
-                argmin[i] = witness
-            if value is not None:  # the witness's exact det J (<= 0), rounded down
-                min_det[i] = value
-                lower[i] = min(lower[i], value)
+    status[value + err <= 0] = 0
     status[flat] = -1
     method[flat] = _FLAT
-    e3 = 3 * e
-    with np.errstate(over="ignore"):  # a value beyond float range is reported as +-inf
-        min_det, lower, corner_min, scale = (np.ldexp(a, e3) for a in (min_det, lower, corner_min, scale))
-    return CheckResult(min_det=min_det, lower_bound=lower, argmin=argmin, status=status, corner_min_det=corner_min,
-                       method=method, recovery_ratio=ratio, sos_status=sos_status, scale=scale,
-                       method_requested=ctx.method, relaxation=ctx.relaxation, sos_solves=sos_solves, boxes=boxes)
+
+    k3 = 3 * r["k"]
+    min_det, bad1 = _to_world(value, k3, down=False)
+    low_w, bad2 = _to_world(lower, k3, down=True)
+    corner, _ = _to_world(r["corner"], k3, down=False)
+    scale_w, _ = _to_world(scale, k3, down=False)
+    unrep = bad1 | bad2
+
+    # signs float64 could not settle (the bracket closed around 0, or the witness within its rounding bound of 0):
+    # exact rational arithmetic on the input coordinates. Cells left open by the search limits are not sent
+    # (they stay undecided: raise max_boxes / max_depth)
+    near = np.flatnonzero((status == -1) & ~flat & (r["closed"] | (np.abs(value) <= 64.0 * err)))
+    if near.size:
+        from .exact import decide, round_down, round_nearest
+
+        el = ELEMENTS[name]
+        for i in near:
+            X = P[conn[i]]
+            st, lo_q, witness, value_q, corner_q = decide(X, name, max_boxes=opts.exact_boxes)
+            if st == -1:
+                continue
+            status[i] = st
+            method[i] = _EXACT
+            corner[i] = round_nearest(corner_q)
+            if st == 0:
+                argmin[i] = witness
+            else:
+                value_q = el.det_exact(X, argmin[i])  # the value at the point, exactly (> 0: the cell is valid)
+                lo_q = min(lo_q, value_q)
+            min_det[i] = round_nearest(value_q)
+            low_w[i] = round_down(lo_q) if st == 1 else min(low_w[i], round_down(value_q))
+            unrep[i] = bool(float(min_det[i]) != value_q and abs(min_det[i]) < 2.0**-1022) or (
+                st == 1 and low_w[i] <= 0.0)
+    return CheckResult(min_det=min_det, lower_bound=low_w, argmin=argmin, status=status, corner_min_det=corner,
+                       method=method, recovery_ratio=ratio, sos_status=sos_status, scale=scale_w,
+                       cell_type=np.full(M, CELL_TYPES.index(name), dtype=np.int8), unrepresentable=unrep,
+                       seconds=time.perf_counter() - t0, method_requested=opts.method, relaxation=opts.relaxation,
+                       sos_solves=sos_solves, boxes=boxes)
 
 
-def _run_sos(ctx, B, err, idx, argmin, lower, ratio, sos_status) -> int:
-    """Solve the relaxation on the hexes idx; update argmin (polished), lower (certified) in place."""
-    solver = _solver(ctx)
-    C = bernstein_to_monomial(B[:, idx])
-    coeff_err = 128.0 * err[idx]
+def _monomials(b):
+    from .hexahedron import bernstein_to_monomial
+
+    return bernstein_to_monomial(np.ascontiguousarray(b.T))
+
+
+def _run_sos(P, conn, idx, opts, lower, value, argmin, err, ratio, sos_status) -> int:
+    """The relaxation on the hexes idx (scaled units): certified lower bounds, and polished moment points
+    where they beat the current argmin."""
+    from . import kernel
+
+    b, berr, _, _ = kernel.coefficients(P, conn, idx, "hexahedron")
+    ok = np.isfinite(b).all(axis=1)  # never hand non-finite data to the solver
+    idx, b, berr = idx[ok], b[ok], berr[ok]
+    if idx.size == 0:
+        return 0
+    solver = _solver(opts)
+    C = _monomials(b)
+    coeff_err = 128.0 * berr
     starts = []
     for j, i in enumerate(idx):
-        sol = solver.solve(C[:, j], scale=float(np.abs(B[:, i]).max()) or 1.0)
+        sol = solver.solve(C[:, j], scale=float(np.abs(b[j]).max()) or 1.0)
         sos_status[i] = _sos_code(sol.status)
         if sol.solved:
             ratio[i] = sol.recovery_ratio
             lower[i] = max(lower[i], solver.certified_lower(sol, C[:, j], coeff_err[j]))
-            starts.append((i, sol.argmin))
+            starts.append((j, sol.argmin))
     if starts:
-        ii = np.array([i for i, _ in starts])
-        x0 = np.array([a for _, a in starts])
-        x, f = polish(B[:, ii], x0)
-        # keep whichever point is lower: the polished moment point or the one we had
-        cur = det_at_bernstein(B[:, ii], argmin[ii])
+        jj = np.array([j for j, _ in starts])
+        x, f = kernel.polish(b[jj], np.array([a for _, a in starts]), "hexahedron")
+        cur = kernel.evaluate(b[jj], argmin[idx[jj]], "hexahedron")
         better = f < cur
-        argmin[ii[better]] = x[better]
-    return len(idx)
+        t = kernel.tables("hexahedron")
+        sc = np.abs(b[jj]).max(axis=1)
+        ii = idx[jj[better]]
+        argmin[ii] = x[better]
+        value[ii] = f[better]
+        err[ii] = berr[jj[better]] + t.consts[4] * kernel.U * sc[better] + t.consts[5] * kernel.ETA
+    lower[idx] = np.minimum(lower[idx], value[idx] + err[idx])
+    return int(idx.size)
 
 
-def _exact_decision(X8, uvw):
-    """Verdict in exact rational arithmetic for one hex whose sign lies inside the rounding bound.
+def _sos_everything(P, conn, idx, opts, lower, value, argmin, err, scale, ratio, sos_status, method, r, boxes):
+    """``method="sos"``: the relaxation on every hex, as the paper; the kernel's branch-and-bound only where SOS
+    gave no usable minimum (any status but Solved), no verdict, or a bound that disagrees with its point."""
+    from . import kernel
 
-    Returns ``(status, lower bound or None, new witness uvw or None, witness value or None)``, or None when
-    exact arithmetic cannot decide either. Values are floats rounded down from the exact rationals.
+    t = kernel.tables("hexahedron")
+    # start from the best corner, not the kernel's minimum: the minimum is SOS's to find
+    b, berr, _, _ = kernel.coefficients(P, conn, idx, "hexahedron")
+    vert = t.vidx[np.argmin(b[:, t.vidx], axis=1)]
+    argmin[idx] = t.ctrl[vert]
+    value[idx] = b[np.arange(idx.size), vert]
+    err[idx] = berr
+    solves = _run_sos(P, conn, idx, opts, lower, value, argmin, err, ratio, sos_status)
+    method[idx] = _SOS
+    todo = idx[(sos_status[idx] != 1) | (value[idx] - lower[idx] > 1e-6 * scale[idx]) | (lower[idx] <= 0) &
+               (value[idx] + err[idx] > 0)]
+    if todo.size:
+        rr = kernel.run_cells(P, conn, todo, "hexahedron", rtol=opts.rtol, flat_rtol=opts.flat_rtol,
+                              max_depth=opts.max_depth, max_iter=opts.max_boxes)
+        boxes += int(rr["boxes"].sum())
+        better = rr["value"] < value[todo]
+        argmin[todo[better]] = rr["argmin"][better]
+        value[todo[better]] = rr["value"][better]
+        err[todo[better]] = rr["err"][better]
+        lower[todo] = np.minimum(np.maximum(lower[todo], rr["lower"]), value[todo] + err[todo])
+        method[todo] = _SUBDIVISION
+    return solves, boxes
+
+
+def _check_task(task):
+    """One block on a worker (process or Dask): its own points and connectivity, the options."""
+    P, conn, name, opts = task
+    return _check_block(P, conn, name, opts)
+
+
+def _local(P, conn):
+    """The points a block of cells uses, and the connectivity renumbered into them."""
+    used, inv = np.unique(conn, return_inverse=True)
+    return np.ascontiguousarray(P[used]), inv.reshape(conn.shape).astype(np.int64)
+
+
+def check(points, cells, *, method: str = "auto", relaxation: str = "quad2", rtol: float = 1e-9,
+          flat_rtol: float = 1e-12, max_depth: int = 30, max_boxes: int = 2000, sos_tol: float = 1e-8,
+          sos_max_iter: int = 100, exact_boxes: int = 400, progress=None, jobs: int = 1, processes: int = 1,
+          scheduler=None, block_size: int | None = None, executor=None) -> CheckResult:
+    """Certified validity of every cell: exact min det J, where it occurs, and a proven verdict.
+
+    Parameters
+    ----------
+    points : array_like, shape (N, 3)
+    cells : array_like of int, shape (M, 8); or a sequence of (cell_type, conn) pairs; or {cell_type: conn}
+        Trilinear hexahedra (M, 8), or blocks of any type of :data:`hexsos_plugins.elements.CELL_TYPES` (and
+        ``"voxel"``); node order VTK's (see :mod:`hexsos_plugins.elements`). Results follow the blocks' order.
+    method : {"auto", "sos"}, keyword-only
+        ``"auto"`` (default): the compiled kernel (Bernstein bounds and branch-and-bound) on every cell, the
+        SOS relaxation on trilinear hexahedra whose bracket stays open. ``"sos"``: the relaxation on every
+        trilinear hexahedron, as the paper (argmin from the moments, polished); other types use ``"auto"``.
+    relaxation : {"quad2", "paper"}, keyword-only
+        The SOS relaxation (see :data:`hexsos_plugins.sos.RELAXATIONS`). Default ``"quad2"``.
+    rtol : float, keyword-only
+        Bracket width sought, relative to each cell's scale. Default 1e-9.
+    flat_rtol : float, keyword-only
+        A cell whose det J is nowhere larger than ``flat_rtol`` times the size of its terms is flat:
+        undecided at once. Default 1e-12.
+    max_depth, max_boxes : int, keyword-only
+        Limits of the branch-and-bound per cell (subdivision depth, boxes split). Defaults 30 and 2000.
+    sos_tol, sos_max_iter : keyword-only
+        Clarabel's tolerances (default 1e-8) and iteration cap (default 100). Only the status ``Solved`` is used.
+    exact_boxes : int, keyword-only
+        Most boxes the exact rational subdivision examines for a cell float64 cannot decide. Default 400.
+    progress : callable(done, total), optional
+        Called as cells are done.
+    jobs : int, keyword-only
+        Threads in the compiled kernel (0: one per core). Default 1.
+    processes : int, keyword-only
+        Worker processes (each running the kernel; 0: one per core). Default 1: none.
+    scheduler : dask.distributed.Client or str, optional
+        Run on a Dask cluster (a client, or a scheduler address such as ``"tcp://host:8786"``).
+    block_size : int, optional
+        Cells per task on processes or Dask (default: about four tasks per worker, at most 65536 cells).
+    executor : optional
+        An open executor of :func:`hexsos_plugins.parallel.executor` to use instead of ``processes`` and
+        ``scheduler`` (callers that check many times, like the repair, reuse one pool or cluster connection).
+
+    Returns
+    -------
+    CheckResult
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from hexsos_plugins import check
+    >>> cube = np.array([[0,0,0],[1,0,0],[1,1,0],[0,1,0],[0,0,1],[1,0,1],[1,1,1],[0,1,1]], float)
+    >>> r = check(cube, [range(8)])
+    >>> int(r.status[0]), float(r.min_det[0])
+    (1, 1.0)
+    >>> tet = np.array([[0,0,0],[1,0,0],[0,1,0],[0,0,1]], float)
+    >>> r = check(tet, [("tetra", [[0, 1, 2, 3]]), ("tetra", [[0, 2, 1, 3]])])
+    >>> r.status.tolist(), r.min_det.tolist()
+    ([1, 0], [1.0, -1.0])
     """
-    exact = det_exact(X8, uvw)
-    if exact <= 0:
-        return 0, None, None, _round_down(exact)
-    coeffs = bernstein_exact(X8)
-    corners = [coeffs[int(k)] for k in CORNER_COEFFS]
-    k = min(range(8), key=corners.__getitem__)
-    if corners[k] <= 0:
-        return 0, None, _CORNER_UVW[k].copy(), _round_down(corners[k])
-    low = min(coeffs)
-    if low > 0:  # proven exactly; the float bound is rounded down (0.0 only if it underflows)
-        return 1, _round_down(low), None, None
-    return None
+    if method not in ("auto", "sos"):
+        raise InvalidInputError(f"method: expected 'auto' or 'sos', found {method!r}")
+    from .sos import RELAXATIONS  # light import; the solver is built only when needed
 
+    if relaxation not in RELAXATIONS:
+        raise InvalidInputError(f"relaxation: expected one of {sorted(RELAXATIONS)}, found {relaxation!r}")
+    for name, v in (("jobs", jobs), ("processes", processes)):
+        if not isinstance(v, (int, np.integer)) or v < 0:
+            raise InvalidInputError(f"{name}: expected a number >= 0 (0: one per core), found {v!r}")
+    P, blocks = validate_cells(points, cells)
+    t0 = time.perf_counter()
+    opts = _Options(method, relaxation, float(rtol), float(flat_rtol), int(max_depth), int(max_boxes), float(sos_tol),
+                    int(sos_max_iter), int(exact_boxes))
+    total = sum(b.shape[0] for _, b in blocks)
+    result = CheckResult.empty(total, method_requested=method, relaxation=relaxation)
+    from .parallel import executor as make_executor
 
-def _round_down(q) -> float:
-    """The largest float <= the rational q."""
-    f = float(q)
-    return math.nextafter(f, -math.inf) if f > q else f
+    ctx = nullcontext(executor) if executor is not None else make_executor(processes, scheduler)
+    with ctx as ex, _threads(jobs):
+        start = 0
+        if ex.workers == 1:
+            for name, conn in blocks:
+                part = _check_block(P, conn, name, opts, progress, start, total)
+                result.put(slice(start, start + len(part)), part)
+                start += len(part)
+        else:
+            tasks, where = [], []
+            for name, conn in blocks:
+                m = conn.shape[0]
+                size = block_size or max(4096, min(65536, -(-m // (4 * ex.workers))))
+                for s in range(0, m, size):
+                    where.append(slice(start + s, start + min(s + size, m)))
+                    tasks.append((name, conn[s : s + size]))
+                start += m
+
+            def gen():
+                for name, c in tasks:
+                    Pl, cl = _local(P, c)
+                    yield Pl, cl, name, opts
+
+            done = 0
+            for k, part in ex.imap(_check_task, gen()):
+                result.put(where[k], part)
+                done += len(part)
+                if progress is not None:
+                    progress(done, total)
+    result.seconds = time.perf_counter() - t0
+    return result

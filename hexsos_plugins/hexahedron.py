@@ -47,7 +47,6 @@ __all__ = [
     "UNIT_ROUND",
     "gather",
     "gather_t",
-    "det_grid",
     "det_bernstein",
     "bernstein_to_monomial",
     "det_at",
@@ -86,10 +85,10 @@ for _n, (_i, _j, _k) in enumerate(CORNERS):
 
 # The 8 corner coefficients (index 9 a + 3 b + c with a = 2 u ...) in VTK node order.
 _CORNER_INDEX = np.array([18 * i + 6 * j + 2 * k for i, j, k in CORNERS])
-# Rounding-error constant: every value and Bernstein coefficient computed by ``det_bernstein`` and
-# ``det_at`` is within ``_ROUND_C * UNIT_ROUND * scale`` of the exact one (see ``det_bernstein``).
+# Rounding-error constant of ``det_at``: a value is a triple product of edge vectors interpolated in a few
+# roundings, so it is within 15 u times the product of the largest edge L1 norms of exact (1024: a margin).
+# (Not used by the proofs, which are the kernel's: no underflow term here.)
 _ROUND_C = 1024.0
-_CHUNK = 4096  # measured in check on a 256k-hex mesh: 4096 beat 2048, 8192 and 16384
 
 
 def gather(points, hexes) -> np.ndarray:
@@ -143,120 +142,40 @@ def _edges(X):
     return eu, ev, ew
 
 
-def _midpoints(e):
-    """Bilinear interpolation of a (3, 2, 2, M) edge field at {0, 1/2, 1}^2: (3, 3, 3, M)."""
-    g = np.empty((3, 3, 3) + e.shape[3:])
-    g[:, 0::2, 0::2] = e
-    mid = g[:, 1, 0::2]
-    np.add(e[:, 0], e[:, 1], out=mid)
-    mid *= 0.5
-    mid = g[:, 0::2, 1]
-    np.add(e[:, :, 0], e[:, :, 1], out=mid)
-    mid *= 0.5
-    centre = g[:, 1, 1]
-    np.add(g[:, 1, 0], g[:, 1, 2], out=centre)
-    centre *= 0.5
-    return g
-
-
-def _scale(eu, ev, ew):
-    """Per hex, the product over directions of the largest edge L1 norm: bounds every |term| of det J."""
-    su = np.abs(eu).sum(axis=0).reshape(4, -1).max(axis=0)
-    sv = np.abs(ev).sum(axis=0).reshape(4, -1).max(axis=0)
-    sw = np.abs(ew).sum(axis=0).reshape(4, -1).max(axis=0)
-    return su * sv * sw
-
-
-def _grid_chunk(X, out):
-    """det J at {0, 1/2, 1}^3 of the hexes X (3, 8, m) into out (3, 3, 3, m); returns the scale (m,)."""
-    eu, ev, ew = _edges(X)
-    du, dv, dw = _midpoints(eu), _midpoints(ev), _midpoints(ew)
-    # du[:, b, c] = x_u at (v, w) = (b/2, c/2); dv[:, a, c] at (u, w); dw[:, a, b] at (u, v).
-    # Broadcast all 27 grid points (a, b, c) at once: x_u -> [None, b, c], x_v -> [a, None, c], x_w -> [a, b, None].
-    ux, uy, uz = du[0][None], du[1][None], du[2][None]
-    vx, vy, vz = dv[0][:, None], dv[1][:, None], dv[2][:, None]
-    wx, wy, wz = dw[0][:, :, None], dw[1][:, :, None], dw[2][:, :, None]
-    t1 = np.empty_like(out)
-    t2 = np.empty_like(out)
-    for a, b, c, d, e in ((ux, vy, wz, vz, wy), (uy, vz, wx, vx, wz), (uz, vx, wy, vy, wx)):
-        np.multiply(b, c, out=t1)
-        np.multiply(d, e, out=t2)
-        np.subtract(t1, t2, out=t1)
-        if a is ux:
-            np.multiply(a, t1, out=out)
-        else:
-            np.multiply(a, t1, out=t2)
-            out += t2
-    return _scale(eu, ev, ew)
-
-
-def det_grid(X, *, bernstein=False, layout="aos", stats=None):
-    """det J at the 27 points {0, 1/2, 1}^3, as (3, 3, 3, M) (u, v, w indices), and the scale (M,).
-
-    With ``bernstein=True`` the values are turned into Bernstein coefficients chunk by chunk; with ``stats``
-    (a dict) the per-hex summaries of :func:`det_bernstein` are filled in while each chunk is in cache.
-    """
-    X = _as_soa(X, layout)
-    M = X.shape[2]
-    F = np.empty((3, 3, 3, M))
-    S = np.empty(M)
-    if stats is not None:
-        for name, dt in (("max_abs", np.float64), ("min", np.float64), ("corner_min", np.float64),
-                         ("corner_arg", np.int64)):
-            stats[name] = np.empty(M, dtype=dt)
-    corners = _CORNER_INDEX
-    for s in range(0, M, _CHUNK):
-        out = np.empty((3, 3, 3, min(_CHUNK, M - s)))
-        S[s : s + _CHUNK] = _grid_chunk(X[:, :, s : s + _CHUNK], out)
-        if bernstein:
-            _values_to_bernstein(out)
-        F[..., s : s + _CHUNK] = out
-        if stats is not None:
-            flat = out.reshape(27, -1)
-            stats["max_abs"][s : s + _CHUNK] = np.maximum(flat.max(axis=0), -flat.min(axis=0, out=stats["min"][s : s + _CHUNK]))
-            c = flat[corners]
-            k = c.argmin(axis=0)
-            stats["corner_arg"][s : s + _CHUNK] = k
-            stats["corner_min"][s : s + _CHUNK] = c[k, np.arange(c.shape[1])]
-    return F, S
-
-
-def _values_to_bernstein(F):
-    """Per axis b0 = f0, b1 = 2 f(1/2) - (f0 + f1) / 2, b2 = f1 on a (3, 3, 3, ...) array, in place."""
-    F[1] = 2.0 * F[1] - 0.5 * (F[0] + F[2])
-    F[:, 1] = 2.0 * F[:, 1] - 0.5 * (F[:, 0] + F[:, 2])
-    F[:, :, 1] = 2.0 * F[:, :, 1] - 0.5 * (F[:, :, 0] + F[:, :, 2])
-    return F
-
-
 def det_bernstein(X, *, layout="aos", stats=None):
     """Tensor Bernstein coefficients of det J, with a rigorous bound on their rounding error.
+
+    A convenience over the compiled kernel (:func:`hexsos_plugins.kernel.coefficients`), in the units of X.
 
     Parameters
     ----------
     X : array_like, shape (M, 8, 3) or (8, 3); with ``layout="soa"``, (3, 8, M) (see :func:`gather`)
     stats : dict, optional
-        Filled with per-hex summaries computed while the coefficients are in cache: ``max_abs`` (the
-        scale, max |B|), ``min`` (min B), ``corner_min`` and ``corner_arg`` (the smallest of the 8 corner
-        coefficients and its node, VTK order).
+        Filled with per-hex summaries: ``max_abs`` (the scale, max |B|), ``min`` (min B), ``corner_min`` and
+        ``corner_arg`` (the smallest of the 8 corner coefficients and its node, VTK order).
 
     Returns
     -------
     B : ndarray, shape (27, M); ``B[9 a + 3 b + c]`` belongs to the control point (a, b, c) / 2.
-    err : ndarray, shape (M,); ``|B_computed - B_exact| <= err`` for every coefficient.
-
-    Notes
-    -----
-    The error bound: edge vectors, their averages and the triple products are each a few roundings
-    from exact, and every term of a triple product is at most ``scale = prod_dir max_edge ||e||_1`` in
-    magnitude, so every computed value of det J is within ``15 u scale`` of the exact value (u the
-    unit roundoff). The Bernstein transform has row sums of absolute values <= 3 per axis (27 in all)
-    and adds its own roundings, so each coefficient is within ``(27 * 15 + 243) u scale < 700 u scale``.
-    We use ``1024 u scale``.
+    err : ndarray, shape (M,); ``|B_computed - B_exact| <= err`` for every coefficient (values that overflow
+        float64 in the units of X are inf).
     """
-    F, S = det_grid(X, bernstein=True, layout=layout, stats=stats)
-    B = F.reshape(27, -1)
-    return B, (_ROUND_C * UNIT_ROUND) * S
+    from . import kernel
+
+    Xs = _as_soa(X, layout)
+    M = Xs.shape[2]
+    P = np.ascontiguousarray(Xs.transpose(2, 1, 0).reshape(-1, 3))
+    conn = np.arange(8 * M, dtype=np.int64).reshape(M, 8)
+    b, err, k, _ = kernel.coefficients(P, conn, np.arange(M), "hexahedron")
+    with np.errstate(over="ignore", under="ignore"):
+        B = np.ldexp(b, 3 * k[:, None]).T.copy()
+        err = np.ldexp(err, 3 * k)
+    if stats is not None:
+        corners = B[_CORNER_INDEX]
+        arg = corners.argmin(axis=0)
+        stats.update(max_abs=np.abs(B).max(axis=0), min=B.min(axis=0), corner_arg=arg,
+                     corner_min=corners[arg, np.arange(M)])
+    return B, err
 
 
 def bernstein_to_monomial(B) -> np.ndarray:
@@ -336,6 +255,14 @@ def det_gradient_at(B, uvw) -> np.ndarray:
 def det_hessian_at(B, uvw) -> np.ndarray:
     """Hessian of det J with respect to (u, v, w) at uvw (M, 3): (M, 3, 3)."""
     return det_derivatives(B, uvw)[2]
+
+
+def _scale(eu, ev, ew):
+    """Per hex, the product over directions of the largest edge L1 norm: bounds every |term| of det J."""
+    su = np.abs(eu).sum(axis=0).reshape(4, -1).max(axis=0)
+    sv = np.abs(ev).sum(axis=0).reshape(4, -1).max(axis=0)
+    sw = np.abs(ew).sum(axis=0).reshape(4, -1).max(axis=0)
+    return su * sv * sw
 
 
 def _jacobian_at(X, uvw):
