@@ -94,7 +94,8 @@ def _out_of_range(d):
 
 def _tets_only(d):
     p = os.path.join(d, "tets.vtu")
-    _write(p, np.eye(4, 3), [("tetra", np.array([[0, 1, 2, 3]]))])
+    _write(p, np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1], [1, 1, 1]]),
+           [("tetra", np.array([[0, 1, 2, 3], [1, 2, 3, 4], [1, 3, 2, 4]]))])
     return p, []
 
 
@@ -150,9 +151,20 @@ def _voxels(d):
 
 
 def _mixed(d):
+    """8 hexes, a tet and a pyramid on their top face, and quads (2-D cells are not checked)."""
     P, H = structured_grid(2)
-    p = os.path.join(d, "mixed.vtu")
-    _write(p, P, [("hexahedron", H), ("tetra", H[:2, :4]), ("wedge", H[:2, :6]), ("quad", H[:3, :4])])
+    top = P[:, 2].max()
+    extra = np.array([[0.0, 0.0, top + 1.0], [0.5, 0.5, top + 1.0], [1.0, 1.0, top + 0.5]])
+    P = np.vstack([P, extra])
+    n = len(P) - 3
+
+    def at(x, y, z):
+        return int(np.flatnonzero(np.all(np.isclose(P, [x, y, z]), axis=1))[0])
+
+    pyramid = [[at(0.5, 0.5, top), at(1, 0.5, top), at(1, 1, top), at(0.5, 1, top), n + 2]]
+    tets = [[at(0, 0, top), at(0.5, 0, top), at(0, 0.5, top), n]]
+    _write(p := os.path.join(d, "mixed.vtu"), P, [("hexahedron", H), ("tetra", np.array(tets)),
+                                                   ("pyramid", np.array(pyramid)), ("quad", H[:3, :4])])
     return p, []
 
 
@@ -192,8 +204,9 @@ CASES = [
     ("NaN coordinates", "a referenced point at NaN", _nan, 2, "expected finite point coordinates", None),
     ("infinite coordinates", "a referenced point at inf", _inf, 2, "expected finite point coordinates", None),
     ("cell index out of range", "a hex naming node 11 of 8", _out_of_range, 2, "references point 11", None),
-    ("tets only", "no hexahedra", _tets_only, 2, "found 1 tetra", None),
-    ("quads only", "no hexahedra", _quads_only, 2, "found 1 quad", None),
+    ("tets only", "a mesh of tetrahedra, one of them inverted", _tets_only, 1, None,
+     {"cells": 3, "hexes": 0, "valid": 2, "invalid": 1}),
+    ("quads only", "no 3-D cells", _quads_only, 2, "expected 3-D cells hexsos can check", None),
     ("repeated vertex (coordinates)", "two nodes of a hex at one point: a collapsed edge", _repeated_vertex, 1,
      None, {"invalid": 1}),
     ("repeated vertex (index)", "a hex naming one node twice", _repeated_index, 1, None, {"invalid": 1}),
@@ -201,7 +214,7 @@ CASES = [
     ("left-handed file", "every hex in the mirrored node order", _left_handed, 2, "left-handed", None),
     ("left-handed, --fix-orientation", "the same, flipped on request", _left_handed_fixed, 0, None, {"valid": 8}),
     ("VTK voxels", "cell type 11 (x-fastest node order)", _voxels, 0, None, {"valid": 8}),
-    ("mixed mesh", "hexes with tets, wedges and quads", _mixed, 0, None, {"hexes": 8, "valid": 8}),
+    ("mixed mesh", "hexes with a tet, a pyramid and quads", _mixed, 0, None, {"cells": 10, "hexes": 8, "valid": 10}),
     ("unreferenced points", "points no cell uses (one at 1e30)", _unreferenced, 0, None, {"valid": 8}),
     ("duplicate points", "coinciding points, no node shared", _duplicates, 0, None, {"valid": 8}),
 ] + [(f"scale {s:g}", "200 random hexes (sigma 0.3), coordinates times this", _scaled(s), 1, None, "same verdicts")

@@ -11,21 +11,67 @@ import os
 import sys
 import time
 
+import numpy as np
+
 from .cli_common import Progress, add_check_options, read_mesh
 
 __all__ = ["add_parsers"]
 
 
 def _read_and_check(path, args):
-    """Read ``path`` (flipping a left-handed file on request) and check it with the command's options."""
+    """Read ``path`` (flipping a left-handed type on request) and check every 3-D cell with the command's
+    options; the scaled Jacobian rides along (``result.extra``)."""
     from .certify import check
 
     mesh, orient = read_mesh(path, args.fix_orientation)
     bar = Progress("checking", enabled=args.progress)
-    result = check(mesh.points, mesh.hexes, method=args.method, relaxation=args.relaxation, progress=bar,
-                   jobs=args.jobs, scheduler=args.scheduler)
+    result = check(mesh.points, mesh.cells, method=args.method, relaxation=args.relaxation, progress=bar,
+                   jobs=args.jobs, processes=args.processes, scheduler=args.scheduler)
     bar.close()
+    _add_quality(result, mesh.points, mesh.cells)
     return mesh, orient, result
+
+
+def _add_quality(result, points, cells):
+    """The corner scaled Jacobian (Verdict's) of every cell beside the exact min det J: the number users compare."""
+    from .quality import scaled_jacobian, summary
+
+    sj = scaled_jacobian(points, cells)
+    result.extra["scaled_jacobian"] = sj
+    # JSON has no NaN: cell types without a scaled Jacobian (quadratic cells) give None
+    result.extra["scaled_jacobian_summary"] = {k: (None if v is None or not np.isfinite(v) else float(v))
+                                               for k, v in summary(sj).items()}
+
+
+def _report(result) -> dict:
+    d = result.to_dict()
+    if "scaled_jacobian_summary" in result.extra:
+        d["scaled_jacobian"] = result.extra["scaled_jacobian_summary"]
+    return d
+
+
+def _cell_data(result) -> dict:
+    cd = result.cell_data()
+    if "scaled_jacobian" in result.extra:
+        cd["hexsos_scaled_jacobian"] = result.extra["scaled_jacobian"]
+    return cd
+
+
+def _quality_line(result) -> str:
+    q = result.extra.get("scaled_jacobian_summary")
+    if not q or q.get("min") is None:
+        return ""
+    return f"scaled J   min {q['min']:.4f}, 1st percentile {q['p1']:.4f}, mean {q['mean']:.4f} (corners, Verdict)"
+
+
+def _header(path, mesh) -> str:
+    by = mesh.counts_by_type()
+    cells = ", ".join(f"{n} {t}" for t, n in by.items())
+    skipped = getattr(mesh, "skipped", {}) or {}
+    extra = ("; not checked: " + ", ".join(f"{n} {t}" for t, n in skipped.items())) if skipped else ""
+    if set(by) == {"hexahedron"}:
+        return f"{path}: {by['hexahedron']} hexahedra, {mesh.points.shape[0]} points{extra}"
+    return f"{path}: {mesh.n_cells} cells ({cells}), {mesh.points.shape[0]} points{extra}"
 
 
 def _cmd_check(args) -> int:
@@ -34,22 +80,26 @@ def _cmd_check(args) -> int:
     if args.output:
         from .io import write
 
-        warnings = write(mesh.to_meshio(cell_data=result.cell_data()), args.output)
+        warnings = write(mesh.to_meshio(cell_data=_cell_data(result)), args.output)
     pictures = _pictures(args, mesh, result)
     if args.json:
-        d = result.to_dict()
+        d = _report(result)
         d["file"] = args.mesh
-        d["orientation"] = orient + (" (flipped)" if orient == "left-handed" else "")
+        d["orientation"] = orient + (" (flipped)" if orient.startswith("left-handed") else "")
+        d["not_checked"] = dict(getattr(mesh, "skipped", {}) or {})
         if args.output:
             d["output"] = args.output
         d["pictures"] = pictures
         d["warnings"] = warnings
         print(json.dumps(d))
     else:
-        print(f"{args.mesh}: {mesh.hexes.shape[0]} hexahedra, {mesh.points.shape[0]} points")
-        if orient == "left-handed":
-            print("orientation: left-handed file, hexes flipped (--fix-orientation)")
+        print(_header(args.mesh, mesh))
+        if orient.startswith("left-handed"):
+            print(f"orientation: {orient} file, flipped (--fix-orientation)")
         print(result.summary())
+        line = _quality_line(result)
+        if line:
+            print(line)
         for path in ([args.output] if args.output else []) + pictures:
             print(f"wrote {path}")
         for w in warnings:
@@ -62,7 +112,7 @@ def _pictures(args, mesh, result) -> list:
 
     out = []
     if getattr(args, "screenshot", None):
-        out.append(viz.screenshot(mesh.points, mesh.hexes, result, args.screenshot,
+        out.append(viz.screenshot(mesh.points, mesh.cells, result, args.screenshot,
                                   title=f"{os.path.basename(args.mesh)}: " + _one_line(result)))
     if getattr(args, "histogram", None):
         out.append(viz.histogram(result, args.histogram, title=f"{os.path.basename(args.mesh)}: " + _one_line(result)))
@@ -71,7 +121,8 @@ def _pictures(args, mesh, result) -> list:
 
 def _one_line(result) -> str:
     c = result.counts()
-    return (f"{c['hexes']} hexes, {c['invalid']} invalid ({c['invalid_inside_only']} inside only), "
+    what = "hexes" if c["hexes"] == c["cells"] else "cells"
+    return (f"{c['cells']} {what}, {c['invalid']} invalid ({c['invalid_inside_only']} inside only), "
             f"{c['undecided']} undecided")
 
 
@@ -79,9 +130,9 @@ def _cmd_convert(args) -> int:
     from .io import write
 
     mesh, orient, result = _read_and_check(args.input, args)
-    warnings = write(mesh.to_meshio(cell_data=result.cell_data()), args.output)
+    warnings = write(mesh.to_meshio(cell_data=_cell_data(result)), args.output)
     if args.json:
-        d = result.to_dict()
+        d = _report(result)
         d.update({"input": args.input, "output": args.output, "warnings": warnings})
         print(json.dumps(d))
     else:
@@ -100,14 +151,15 @@ def _cmd_demo(args) -> int:
     points, hexes, info = demo_mesh()
     gen = time.perf_counter() - t0
     result = check(points, hexes, method=args.method, relaxation=args.relaxation, jobs=args.jobs,
-                   scheduler=args.scheduler)
+                   processes=args.processes, scheduler=args.scheduler)
+    _add_quality(result, points, hexes)
     out = args.output
     if out is None:
         out = os.path.join(os.getcwd(), "hexsos-demo.vtu")
     from .io import write
 
     mesh = HexMesh.from_arrays(points, hexes)
-    warnings = write(mesh.to_meshio(cell_data=result.cell_data()), out)
+    warnings = write(mesh.to_meshio(cell_data=_cell_data(result)), out)
     m = info["inside_only_hex"]
     picture = None
     if not args.no_picture:
@@ -120,7 +172,7 @@ def _cmd_demo(args) -> int:
         except DependencyError as exc:  # pyvista is the optional 'viz' extra
             warnings.append(f"no picture: {exc}")
     if args.json:
-        d = result.to_dict()
+        d = _report(result)
         d.update({"output": out, "picture": picture, "inside_only_hex": m, "generated_seconds": round(gen, 3),
                   "warnings": warnings})
         print(json.dumps(d))
@@ -129,11 +181,12 @@ def _cmd_demo(args) -> int:
     print("hexsos demo: a ring of hexahedra meshed by Gmsh, damaged on purpose (two vertices pushed through")
     print(f"their neighbours; one boundary face distorted), {len(result)} hexes, generated in {gen:.2f} s\n")
     print(result.summary())
+    print(_quality_line(result))
     print(f"\nhex {m} is what corner checks miss: det J is {result.corner_min_det[m]:.6g} or more at its 8 corners,")
     print(f"but its minimum is {result.min_det[m]:.6g} at (u, v, w) = ({u:.6f}, {v:.6f}, {w:.6f}) (proven: "
           f"{'invalid' if result.status[m] == 0 else 'not proven invalid'}).")
     print(f"\nwrote {out} (cell arrays hexsos_min_det, hexsos_lower_bound, hexsos_argmin, hexsos_status, "
-          "hexsos_corner_min_det); open it in ParaView or Gmsh")
+          "hexsos_corner_min_det, hexsos_scaled_jacobian); open it in ParaView or Gmsh")
     if picture:
         print(f"wrote {picture}: invalid hexes red, the one that folds inside only magenta, black spheres where "
               "det J is smallest")
@@ -142,18 +195,18 @@ def _cmd_demo(args) -> int:
     return 0
 
 
-
-
 def add_parsers(sub) -> None:
     """Add ``check``, ``convert`` and ``demo`` to ``sub`` (an ``argparse`` sub-parsers action)."""
-    p = sub.add_parser("check", help="prove every hex valid or invalid, with its minimum det J and where it occurs",
-                       description="Check every hexahedron of MESH: exact minimum of det J over the parameter cube, "
-                                   "its location, and a proven verdict (valid / invalid / undecided).")
+    p = sub.add_parser("check", help="prove every cell valid or invalid, with its minimum det J and where it occurs",
+                       description="Check every 3-D cell of MESH (tetrahedra, pyramids, wedges, hexahedra, linear and "
+                                   "quadratic): exact minimum of det J over the reference element, its location, a "
+                                   "proven verdict (valid / invalid / undecided), and the corner scaled Jacobian.")
     p.add_argument("mesh", metavar="MESH", help="a mesh file (any format meshio reads, e.g. .vtu .vtk .msh .mesh)")
     p.add_argument("-o", "--output", metavar="OUT", help="write the mesh with the result arrays added")
     p.add_argument("--json", action="store_true", help="print one JSON object instead of the summary")
     p.add_argument("--fix-orientation", action="store_true",
-                   help="flip the hexes of a left-handed file (all hexes negatively oriented) before checking")
+                   help="flip the cells of a type whose cells are all negatively oriented (a file that mirrors "
+                        "that type's node order) before checking")
     p.add_argument("--screenshot", metavar="PNG",
                    help="render the mesh coloured by min det J, invalid hexes highlighted, argmin points as spheres")
     p.add_argument("--histogram", metavar="PNG", help="plot the histogram of min det J per hex")

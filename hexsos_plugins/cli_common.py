@@ -63,9 +63,11 @@ def add_check_options(p):
 
 
 def add_run_options(p):
-    """--jobs, --scheduler, --progress / --no-progress (shared by every command that runs the kernel)."""
+    """--jobs, --processes, --scheduler, --progress / --no-progress (every command that runs the kernel)."""
     p.add_argument("--jobs", type=int, default=1, metavar="N",
-                   help="worker processes (0: one per core; default 1)")
+                   help="threads in the compiled kernel (0: one per core; default 1)")
+    p.add_argument("--processes", type=int, default=1, metavar="N",
+                   help="worker processes, each running the kernel (0: one per core; default 1: none)")
     p.add_argument("--scheduler", metavar="ADDRESS",
                    help="run on a Dask cluster, e.g. tcp://host:8786 (needs the 'dask' extra)")
     p.add_argument("--progress", dest="progress", action="store_true", default=None,
@@ -74,17 +76,20 @@ def add_run_options(p):
 
 
 def read_mesh(path, fix_orientation: bool):
-    from .io import read
+    """Read ``path``; a cell type whose cells are *all* negatively oriented (the file mirrors that type's node
+    order) is an error naming it, unless ``fix_orientation``, which flips exactly those types. Returns
+    ``(mesh, orientation)`` with orientation ``"right-handed"``, ``"mixed"`` or ``"left-handed (TYPES)"``."""
     from .errors import LeftHandedMeshError
+    from .io import read
 
     mesh = read(path)
-    orient = mesh.orientation()
-    if orient == "left-handed":
-        if not fix_orientation:
-            raise LeftHandedMeshError(
-                f"{path} is left-handed: all {mesh.hexes.shape[0]} hexes are negatively oriented (det J < 0 at "
-                "their centres; the file uses the mirrored node order). Pass --fix-orientation to flip them")
-        mesh = mesh.flipped()
-    return mesh, orient
-
-
+    left = mesh.left_handed_types()
+    if not left:
+        return mesh, mesh.orientation()
+    counts = mesh.counts_by_type()
+    what = ", ".join(f"all {counts[t]} {t} cells" for t in left)
+    if not fix_orientation:
+        raise LeftHandedMeshError(
+            f"{path} is left-handed: {what} are negatively oriented (det J < 0 at their centres; the file uses "
+            "the mirrored node order). Pass --fix-orientation to flip them")
+    return mesh.flipped(cell_types=left), f"left-handed ({', '.join(left)})"

@@ -1,4 +1,4 @@
-"""Pictures of a check: the mesh coloured by min det J with invalid hexes and their argmin points, and the
+"""Pictures of a check: the mesh coloured by min det J with invalid cells and their argmin points, and the
 histogram of min det J per hex (the paper's Figures 6, 7 and 9). pyvista and matplotlib are imported lazily
 (extra ``viz``); rendering is off-screen.
 """
@@ -11,9 +11,8 @@ import warnings
 import numpy as np
 
 from .errors import DependencyError, MeshWriteError
-from .hexahedron import map_points
 
-__all__ = ["screenshot", "histogram", "relative_min_det"]
+__all__ = ["screenshot", "histogram", "relative_min_det", "world_points"]
 
 
 def relative_min_det(result) -> np.ndarray:
@@ -34,22 +33,49 @@ def _pyvista():
     return pv
 
 
-def _grid(pv, points, hexes):
-    hexes = np.asarray(hexes, dtype=np.int64)
-    cells = np.hstack([np.full((len(hexes), 1), 8), hexes]).ravel()
-    return pv.UnstructuredGrid(cells, np.full(len(hexes), 12, dtype=np.uint8), np.asarray(points, float))
+def _blocks(cells):
+    """[(cell_type, conn)] from an (M, 8) hex array or a list of (cell_type, conn) pairs."""
+    if isinstance(cells, (list, tuple)) and cells and isinstance(cells[0], (list, tuple)) and isinstance(cells[0][0], str):
+        return [(t, np.asarray(c, dtype=np.int64)) for t, c in cells]
+    return [("hexahedron", np.asarray(cells, dtype=np.int64))]
 
 
-def screenshot(points, hexes, result, path, *, window_size=(1400, 1000), title: str | None = None) -> str:
+def _grid(pv, points, blocks):
+    from .elements import ELEMENTS
+
+    parts, types = [], []
+    for t, conn in blocks:
+        parts.append(np.hstack([np.full((len(conn), 1), conn.shape[1]), conn]).ravel())
+        types.append(np.full(len(conn), ELEMENTS[t].vtk_type, dtype=np.uint8))
+    return pv.UnstructuredGrid(np.concatenate(parts), np.concatenate(types), np.asarray(points, float))
+
+
+def world_points(points, cells, uvw) -> np.ndarray:
+    """x(u, v, w) of one parametric point per cell (the cells' own shape functions): (M, 3)."""
+    from .elements import ELEMENTS
+
+    points = np.asarray(points, float)
+    uvw = np.asarray(uvw, float)
+    out, s = np.empty((len(uvw), 3)), 0
+    for t, conn in _blocks(cells):
+        m = len(conn)
+        N = ELEMENTS[t].shape_functions(uvw[s : s + m])  # (m, n)
+        out[s : s + m] = np.einsum("mn,mna->ma", N, points[conn])
+        s += m
+    return out
+
+
+def screenshot(points, cells, result, path, *, window_size=(1400, 1000), title: str | None = None) -> str:
     """Render the mesh off-screen to a PNG.
 
-    Valid hexes are drawn translucent, coloured by :func:`relative_min_det`; invalid hexes opaque (red: a
-    corner check would see it too; magenta: invalid inside only, valid at all 8 corners), undecided yellow;
-    each invalid hex's minimum location x(argmin) is a black sphere.
+    Valid cells are drawn translucent, coloured by :func:`relative_min_det`; invalid cells opaque (red: a
+    corner check would see it too; magenta: invalid inside only, valid at all corners), undecided yellow;
+    each invalid cell's minimum location x(argmin) is a black sphere.
 
     Parameters
     ----------
-    points : (N, 3), hexes : (M, 8), result : CheckResult of these hexes, path : PNG file to write
+    points : (N, 3); cells : (M, 8) hexahedra or a list of (cell_type, conn); result : CheckResult of these
+    cells; path : PNG file to write
 
     Returns
     -------
@@ -57,11 +83,12 @@ def screenshot(points, hexes, result, path, *, window_size=(1400, 1000), title: 
     """
     pv = _pyvista()
     points = np.asarray(points, float)
-    hexes = np.asarray(hexes, dtype=np.int64)
-    grid = _grid(pv, points, hexes)
+    blocks = _blocks(cells)
+    grid = _grid(pv, points, blocks)
     rel = relative_min_det(result)
     grid.cell_data["min det J / scale"] = rel
-    h = float(np.median(np.linalg.norm(points[hexes[:, 1]] - points[hexes[:, 0]], axis=1))) or 1.0
+    edges = np.concatenate([np.linalg.norm(points[c[:, 1]] - points[c[:, 0]], axis=1) for _, c in blocks])
+    h = float(np.median(edges)) or 1.0
 
     p = pv.Plotter(off_screen=True, window_size=list(window_size))
     p.set_background("white")
@@ -84,12 +111,12 @@ def screenshot(points, hexes, result, path, *, window_size=(1400, 1000), title: 
                        line_width=2, label=label)
     bad = np.flatnonzero(result.status != 1)
     if bad.size:  # (then at least one labelled item exists for the legend)
-        where = map_points(points[hexes[bad]], result.argmin[bad])
+        where = world_points(points, blocks, result.argmin)[bad]
         p.add_mesh(pv.PolyData(where).glyph(geom=pv.Sphere(radius=0.18 * h), scale=False, orient=False),
                    color="black", label="where det J is smallest")
         p.add_legend(bcolor="white", face="rectangle", size=(0.28, 0.16), loc="upper left")
     c = result.counts()
-    p.add_text(title or f"{c['hexes']} hexes: {c['invalid']} invalid ({c['invalid_inside_only']} inside only), "
+    p.add_text(title or f"{c['cells']} cells: {c['invalid']} invalid ({c['invalid_inside_only']} inside only), "
                f"{c['undecided']} undecided", font_size=11, color="black", position="lower_left")
     p.view_isometric()
     p.reset_camera()
@@ -121,10 +148,10 @@ def histogram(result, path, *, title: str | None = None, bins: int = 60) -> str:
     ax.bar(edges[:-1], counts, width=np.diff(edges), align="edge", color=colors, edgecolor="white", linewidth=0.3)
     ax.set_yscale("log")
     ax.axvline(0.0, color="black", linewidth=1)
-    ax.set_xlabel("min det J / max |det J| per hex  (<= 0: invalid)")
-    ax.set_ylabel("hexes")
+    ax.set_xlabel("min det J / max |det J| per cell  (<= 0: invalid)")
+    ax.set_ylabel("cells")
     c = result.counts()
-    ax.set_title(title or f"{c['hexes']} hexes: {c['invalid']} invalid, {c['invalid_inside_only']} of them "
+    ax.set_title(title or f"{c['cells']} cells: {c['invalid']} invalid, {c['invalid_inside_only']} of them "
                           "inside only", fontsize=10)
     ax.set_xlim(edges[0], edges[-1])
     fig.tight_layout()

@@ -137,12 +137,12 @@ def test_bad_input_one_line_exit_2(tmp_path, capsys, content, name, match):
     assert err.startswith("hexsos: error: ") and match in err and len(err.strip().splitlines()) == 1
 
 
-def test_no_hexahedra(tmp_path, capsys):
-    path = tmp_path / "tets.vtu"
-    meshio.write(path, meshio.Mesh(np.eye(4, 3), [("tetra", np.array([[0, 1, 2, 3]]))]))
+def test_no_3d_cells(tmp_path, capsys):
+    path = tmp_path / "tris.vtu"
+    meshio.write(path, meshio.Mesh(np.eye(4, 3), [("triangle", np.array([[0, 1, 2], [1, 2, 3]]))]))
     assert cli.main(["check", str(path)]) == 2
     err = capsys.readouterr().err
-    assert "expected hexahedra" in err and "found 1 tetra" in err
+    assert "expected 3-D cells" in err and "found 2 triangle" in err and len(err.splitlines()) == 1
 
 
 def test_console_script_prints_no_traceback(tmp_path):
