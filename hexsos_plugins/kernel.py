@@ -31,13 +31,14 @@ from __future__ import annotations
 import math
 from math import factorial, prod
 
+import numba
 import numpy as np
 from numba import njit, prange
 
 from .jacobian import _indices as _factor_indices
 from .jacobian import space
 
-__all__ = ["run_cells", "coefficients", "evaluate", "polish", "tables", "Tables", "U", "ETA"]
+__all__ = ["run_cells", "coefficients", "evaluate", "polish", "tables", "Tables", "threads_used", "U", "ETA"]
 
 U = 2.0**-53  # unit roundoff
 ETA = 2.0**-1074  # smallest subnormal: bounds the error of any rounding in the subnormal range
@@ -1059,3 +1060,16 @@ def polish(b, X0, name, *, iterations=30):
     _polish_many(b, X0, t.M, t.exps, t.G, t.h, int(iterations), t.fdim, t.fslot, t.fexp, t.fcoef, t.sizes,
                  int(t.S.shape[2]), out, vals)
     return out, vals
+
+
+@njit(cache=True, parallel=True)
+def _thread_ids(n, out):
+    for i in prange(n):
+        out[i] = numba.get_thread_id()
+
+
+def threads_used(n: int = 4096) -> int:
+    """How many distinct threads a parallel kernel loop of n iterations runs on now (numba's current setting)."""
+    out = np.zeros(int(n), dtype=np.int64)
+    _thread_ids(int(n), out)
+    return int(np.unique(out).size)

@@ -11,7 +11,8 @@ Each item is one block of hexes' own data (their vertex coordinates, a few MB at
 the whole mesh.
 
 * ``jobs=1`` (default): in this process.
-* ``jobs=N``: N worker processes (``fork`` where the platform has it, so workers start at once).
+* ``jobs=N``: N worker processes (started from a fork server that has imported the kernel; never forked from
+  this process, whose kernel threads a fork would break).
 * ``scheduler``: a ``dask.distributed.Client`` or a scheduler address such as ``"tcp://10.0.0.5:8786"``
   (optional extra ``dask``); the workers need hexsos installed.
 """
@@ -52,7 +53,15 @@ class SerialExecutor:
 
 class ProcessExecutor(SerialExecutor):
     def __init__(self, jobs: int):
-        ctx = multiprocessing.get_context("fork" if "fork" in multiprocessing.get_all_start_methods() else "spawn")
+        # never fork this process: the compiled kernel's thread pool is not fork-safe (a forked child that runs
+        # a parallel loop the parent started aborts). A fork server starts clean, imports the kernel once and
+        # forks the workers from there; where it does not exist, spawn.
+        methods = multiprocessing.get_all_start_methods()
+        if "forkserver" in methods:
+            ctx = multiprocessing.get_context("forkserver")
+            ctx.set_forkserver_preload(["hexsos_plugins.certify", "hexsos_plugins.kernel"])
+        else:  # pragma: no cover - Windows
+            ctx = multiprocessing.get_context("spawn")
         self.workers = jobs
         self._pool = ProcessPoolExecutor(max_workers=jobs, mp_context=ctx)
 
