@@ -7,6 +7,7 @@ reinstalled) and gets hexsos itself from a wheel built from a copy of the workin
 that the files ParaView loaded are the wheel's, in the environment's site-packages, not the checkout.
 """
 
+import importlib.metadata
 import importlib.util
 import json
 import os
@@ -58,15 +59,19 @@ def run(args, cwd, env, timeout=600):
                           timeout=timeout, check=False)
 
 
+def _version(dist):
+    """The installed version of ``dist`` as (major, minor), without importing it (importing setuptools here,
+    after another test imported distutils, trips setuptools' distutils check)."""
+    try:
+        return tuple(int(x) for x in importlib.metadata.version(dist).split(".")[:2])
+    except (importlib.metadata.PackageNotFoundError, ValueError):
+        return None
+
+
 def _can_build_without_isolation():
     if importlib.util.find_spec("wheel") is not None:
         return True
-    try:
-        import setuptools
-
-        return tuple(int(x) for x in setuptools.__version__.split(".")[:2]) >= (70, 1)  # bdist_wheel built in
-    except (ImportError, ValueError):
-        return False
+    return (_version("setuptools") or (0, 0)) >= (70, 1)  # setuptools >= 70.1 builds wheels on its own
 
 
 @pytest.fixture(scope="module")
@@ -80,9 +85,7 @@ def wheel(tmp_path_factory):
         shutil.copytree(os.path.join(ROOT, pkg), src / pkg,
                         ignore=shutil.ignore_patterns("__pycache__", "*.pyc", "*.egg-info"))
     w = WheelEnv(base)
-    import pip
-
-    outside = tuple(int(x) for x in pip.__version__.split(".")[:2]) >= (22, 3)  # pip --python, no pip inside
+    outside = (_version("pip") or (0, 0)) >= (22, 3)  # pip --python: no pip needed inside the environment
     subprocess.run([sys.executable, "-m", "venv", "--system-site-packages"] + (["--without-pip"] if outside else [])
                    + [str(w.venv)], check=True, timeout=300)
     pip_cmd = [sys.executable, "-m", "pip", "--python", w.python] if outside else [w.python, "-m", "pip"]
