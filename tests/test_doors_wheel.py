@@ -90,9 +90,12 @@ def wheel(tmp_path_factory):
                    + [str(w.venv)], check=True, timeout=300)
     pip_cmd = [sys.executable, "-m", "pip", "--python", w.python] if outside else [w.python, "-m", "pip"]
     install = pip_cmd + ["install", "--no-deps", "--no-input", "-q"]
-    if _can_build_without_isolation():
-        install.append("--no-build-isolation")  # else pip fetches setuptools and wheel to build it
-    proc = subprocess.run(install + [str(src)], capture_output=True, text=True, timeout=600, check=False)
+    if not _can_build_without_isolation():  # setuptools < 70.1 needs the wheel package to build a wheel
+        proc = subprocess.run(install + ["wheel"], capture_output=True, text=True, timeout=600, check=False)
+        assert proc.returncode == 0, proc.stdout + proc.stderr
+    # the build uses this Python's setuptools (and what else the build needs) instead of fetching them
+    proc = subprocess.run(install + ["--no-build-isolation", str(src)], capture_output=True, text=True, timeout=900,
+                          check=False)
     assert proc.returncode == 0, proc.stdout + proc.stderr
     return w
 
