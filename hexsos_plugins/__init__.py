@@ -1,14 +1,17 @@
-"""hexsos: certified validity and repair of hexahedral meshes.
+"""hexsos: certified validity and repair of finite-element meshes.
 
-Every trilinear hex gets the exact minimum of det J over its parameter cube [0, 1]^3, where it occurs,
-and a verdict that is a proof (1 valid, 0 invalid, -1 undecided); invalid meshes can be repaired with a
-certificate (Marschner et al., "Hexahedral Mesh Repair via Sum-of-Squares Relaxation", SGP 2020).
+Every 3-D cell (tetrahedra, pyramids, wedges, hexahedra; linear and quadratic) gets the exact minimum of
+det J over its reference element, where it occurs, and a verdict that is a proof (1 valid, 0 invalid,
+-1 undecided); invalid meshes can be repaired with a certificate (Marschner et al., "Hexahedral Mesh Repair via
+Sum-of-Squares Relaxation", SGP 2020).
 
-Conventions: nodes in VTK order; see :mod:`hexsos_plugins.hexahedron` for the diagram.
+Conventions: VTK's node orders and parametric coordinates; see :mod:`hexsos_plugins.elements`.
+
+The names below are imported on first use, so ``import hexsos_plugins`` stays cheap (a command that only
+reads a file does not load the solver, the repair or the plotting).
 """
 
 from ._version import __version__
-from .certify import METHOD_NAMES, SOS_STATUS_NAMES, STATUS_NAMES, CheckResult, check
 from .errors import (
     DependencyError,
     HexsosError,
@@ -22,11 +25,18 @@ from .errors import (
     SolverError,
     UnsupportedFormatError,
 )
-from .io import read, write
-from .mesh import HexMesh
-from .meshrepair import RepairResult, repair, repair_hex, repair_paper
-from .quality import scaled_jacobian
-from .sos import RELAXATIONS
+
+# name -> module that defines it (imported on first access)
+_LAZY = {
+    "check": "certify", "CheckResult": "certify", "METHOD_NAMES": "certify", "STATUS_NAMES": "certify",
+    "SOS_STATUS_NAMES": "certify",
+    "read": "io", "write": "io",
+    "HexMesh": "mesh", "Mesh": "mesh",
+    "repair": "meshrepair", "repair_hex": "meshrepair", "repair_paper": "meshrepair", "RepairResult": "meshrepair",
+    "scaled_jacobian": "quality",
+    "RELAXATIONS": "sos",
+    "CELL_TYPES": "elements",
+}
 
 __all__ = [
     "__version__",
@@ -35,6 +45,7 @@ __all__ = [
     "read",
     "write",
     "HexMesh",
+    "Mesh",
     "repair",
     "repair_hex",
     "repair_paper",
@@ -44,6 +55,7 @@ __all__ = [
     "STATUS_NAMES",
     "SOS_STATUS_NAMES",
     "RELAXATIONS",
+    "CELL_TYPES",
     "HexsosError",
     "MeshReadError",
     "UnsupportedFormatError",
@@ -56,3 +68,18 @@ __all__ = [
     "RepairError",
     "DependencyError",
 ]
+
+
+def __getattr__(name):
+    module = _LAZY.get(name)
+    if module is None:
+        raise AttributeError(f"module 'hexsos_plugins' has no attribute {name!r}")
+    from importlib import import_module
+
+    value = getattr(import_module(f".{module}", __name__), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__():
+    return sorted(set(globals()) | set(__all__))

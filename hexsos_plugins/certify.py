@@ -389,17 +389,17 @@ def _solver(opts: _Options):
 
 @contextmanager
 def _threads(jobs):
-    """numba's thread count for the kernel calls inside the block (restored afterwards)."""
-    import numba
+    """The kernel's thread count inside the block (restored afterwards); 0: one per core."""
+    import os
 
-    limit = numba.config.NUMBA_NUM_THREADS
-    want = limit if jobs == 0 else max(1, min(int(jobs), limit))
-    old = numba.get_num_threads()
-    numba.set_num_threads(want)
+    from . import kernel
+
+    want = (os.cpu_count() or 1) if jobs == 0 else max(1, int(jobs))
+    old = kernel.set_threads(want)
     try:
         yield want
     finally:
-        numba.set_num_threads(old)
+        kernel.set_threads(old)
 
 
 def _to_world(v, k3, *, down: bool):

@@ -108,9 +108,11 @@ def _cmd_check(args) -> int:
 
 
 def _pictures(args, mesh, result) -> list:
+    out = []
+    if not (getattr(args, "screenshot", None) or getattr(args, "histogram", None)):
+        return out
     from . import viz
 
-    out = []
     if getattr(args, "screenshot", None):
         out.append(viz.screenshot(mesh.points, mesh.cells, result, args.screenshot,
                                   title=f"{os.path.basename(args.mesh)}: " + _one_line(result)))

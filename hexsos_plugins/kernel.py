@@ -22,847 +22,65 @@ One compiled path for every cell type, driven by the tables of :mod:`hexsos_plug
    weights, and its rounding bound.
 
 No fastmath anywhere: every bound assumes IEEE-754 round-to-nearest per operation (a fused multiply-add only
-removes a rounding; reassociation would break the bounds). Cells run in parallel over threads
-(``numba.prange`` over chunks of cells); each chunk owns its scratch arrays, nothing is pickled.
+removes a rounding; reassociation would break the bounds). The chunk functions release the GIL, so cells run
+in parallel on Python threads (:func:`set_threads`); each chunk owns its scratch arrays, nothing is pickled, and
+a small call runs in the calling thread at once.
 """
 
 from __future__ import annotations
 
-import math
+import hashlib
+import os
 from math import factorial, prod
+from pathlib import Path
 
-import numba
 import numpy as np
-from numba import njit, prange
 
 from .jacobian import _indices as _factor_indices
 from .jacobian import space
 
-__all__ = ["run_cells", "coefficients", "evaluate", "polish", "tables", "Tables", "threads_used", "U", "ETA"]
+__all__ = ["run_cells", "coefficients", "evaluate", "polish", "tables", "Tables", "set_threads", "implementation",
+           "U", "ETA"]
 
 U = 2.0**-53  # unit roundoff
 ETA = 2.0**-1074  # smallest subnormal: bounds the error of any rounding in the subnormal range
 _NO_EXTENT = -100000  # scaling exponent of a cell whose nodes all coincide
-_CHUNK = 512  # cells per parallel task (each task allocates its scratch once)
-
-# --- coefficients ----------------------------------------------------------------------------------------------
-
-
-@njit(cache=True, nogil=True)
-def _scaled_differences(points, conn, m, n, D):
-    """D[i] = (X_i - X_0) * 2^-k for the nodes of cell m; returns k (the cell's extent * 2^-k is in [1, 2)),
-    or _NO_EXTENT for a cell whose nodes all coincide (then D = 0)."""
-    ext = 0.0
-    for a in range(3):
-        lo = points[conn[m, 0], a]
-        hi = lo
-        for i in range(1, n):
-            v = points[conn[m, i], a]
-            if v < lo:
-                lo = v
-            if v > hi:
-                hi = v
-        half = 0.5 * hi - 0.5 * lo  # cannot overflow
-        if half > ext:
-            ext = half
-    if ext == 0.0:
-        for i in range(n):
-            for a in range(3):
-                D[i, a] = 0.0
-        return _NO_EXTENT
-    k = math.frexp(ext)[1]  # ext = f 2^k with f in [0.5, 1)
-    # multiply by 2^-k: exact unless the product is subnormal (then within eta / 2). 2^-k is a float for
-    # k >= -1023; for smaller k (subnormal coordinates) in two exact steps (|x| 2^-k stays below 2^55)
-    if k >= -1023:
-        f1 = math.ldexp(1.0, -k)
-        f2 = 1.0
-    else:
-        f1 = math.ldexp(1.0, 600)
-        f2 = math.ldexp(1.0, -k - 600)
-    for a in range(3):
-        s0 = points[conn[m, 0], a] * f1 * f2
-        D[0, a] = 0.0
-        for i in range(1, n):
-            D[i, a] = points[conn[m, i], a] * f1 * f2 - s0
-    return k
-
-
-@njit(cache=True, nogil=True)
-def _perm(A):
-    """The permanent of a non-negative 3 x 3 matrix."""
-    return (A[0, 0] * (A[1, 1] * A[2, 2] + A[1, 2] * A[2, 1]) + A[0, 1] * (A[1, 0] * A[2, 2] + A[1, 2] * A[2, 0])
-            + A[0, 2] * (A[1, 0] * A[2, 1] + A[1, 1] * A[2, 0]))
-
-
-@njit(cache=True, nogil=True)
-def _perm_growth(A, E):
-    """An upper bound of perm(A + E) - perm(A) for A, E >= 0: sum over entries of E times the permanent of
-    the complementary 2 x 2 minor of A + E (perm is multilinear in the rows and monotone)."""
-    s = 0.0
-    for r in range(3):
-        r1, r2 = (r + 1) % 3, (r + 2) % 3
-        for c in range(3):
-            c1, c2 = (c + 1) % 3, (c + 2) % 3
-            s += E[r, c] * ((A[r1, c1] + E[r1, c1]) * (A[r2, c2] + E[r2, c2])
-                            + (A[r1, c2] + E[r1, c2]) * (A[r2, c1] + E[r2, c1]))
-    return s
-
-
-@njit(cache=True, nogil=True)
-def _cell_coefficients(points, conn, m, cptr, cidx_, cval, col_a, col_b, col_w, col_off, xo, xi, xj, xw, do, di, dj,
-                       dw, consts, D, P, mP, eP, col, ecol, X, b, A, E):
-    """det J's Bernstein coefficients b of cell m, by Bernstein products of the Jacobian's columns.
-
-    Steps: node offsets D (scaled by 2^-k), control points P = C D, column coefficients w (P_b - P_a), the
-    cross product of columns 1 and 2 (product table x*), its dot product with column 0 (table d*). Returns
-    (err, k, size, degenerate): err bounds |b - b_exact| (in the scaled units, det J times 2^-3k) for the cell
-    as given; size = perm(A) with A the largest |column coefficient| per component and direction (det J's
-    terms); degenerate: every term of det J is exactly 0 (the cell lies in a plane or less)."""
-    n = D.shape[0]
-    k = _scaled_differences(points, conn, m, n, D)
-    nb = b.shape[0]
-    if k == _NO_EXTENT:
-        for i in range(nb):
-            b[i] = 0.0
-        return 0.0, 0, 0.0, True
-    # control points and the bounds of their rounding (per component)
-    nctrl = P.shape[0]
-    for r in range(nctrl):
-        for c in range(3):
-            s = 0.0
-            t = 0.0
-            for p in range(cptr[r], cptr[r + 1]):
-                w = cval[p]
-                s += w * D[cidx_[p], c]
-                t += abs(w) * abs(D[cidx_[p], c])
-            P[r, c] = s
-            mP[r, c] = t
-        nnz = cptr[r + 1] - cptr[r]
-        for c in range(3):
-            eP[r, c] = (nnz + 3.0) * U * mP[r, c] + (3.0 * nnz + 4.0) * ETA
-    # the columns' coefficients, their largest magnitudes A and errors E per (component, direction)
-    for d in range(3):
-        for c in range(3):
-            A[c, d] = 0.0
-            E[c, d] = 0.0
-        for e in range(col_off[d], col_off[d + 1]):
-            wa = col_w[e]
-            ia = col_a[e]
-            ib = col_b[e]
-            for c in range(3):
-                v = wa * (P[ib, c] - P[ia, c])
-                col[e, c] = v
-                ev = U * abs(v) + wa * (eP[ia, c] + eP[ib, c])
-                ecol[e, c] = ev
-                if abs(v) > A[c, d]:
-                    A[c, d] = abs(v)
-                if ev > E[c, d]:
-                    E[c, d] = ev
-    for c in range(3):
-        for d in range(3):
-            E[c, d] = E[c, d] * (1.0 + 4.0 * U) + ETA
-    # X = column 1 x column 2 (each component a difference of two Bernstein products)
-    nx = X.shape[0]
-    for g in range(nx):
-        X[g, 0] = 0.0
-        X[g, 1] = 0.0
-        X[g, 2] = 0.0
-    o1 = col_off[1]
-    o2 = col_off[2]
-    for q in range(xo.shape[0]):
-        g = xo[q]
-        a = o1 + xi[q]
-        bb = o2 + xj[q]
-        w = xw[q]
-        X[g, 0] += w * (col[a, 1] * col[bb, 2] - col[a, 2] * col[bb, 1])
-        X[g, 1] += w * (col[a, 2] * col[bb, 0] - col[a, 0] * col[bb, 2])
-        X[g, 2] += w * (col[a, 0] * col[bb, 1] - col[a, 1] * col[bb, 0])
-    # b = column 0 . X
-    for i in range(nb):
-        b[i] = 0.0
-    o0 = col_off[0]
-    for q in range(do.shape[0]):
-        a = o0 + di[q]
-        j = dj[q]
-        b[do[q]] += dw[q] * (col[a, 0] * X[j, 0] + col[a, 1] * X[j, 1] + col[a, 2] * X[j, 2])
-    size = _perm(A)
-    # exactly degenerate: every term of det J has a factor that is exactly 0 (a cell in a plane, a line, ...);
-    # a size that merely underflows is not that
-    degenerate = not ((A[0, 0] > 0 and (A[1, 1] > 0 and A[2, 2] > 0 or A[1, 2] > 0 and A[2, 1] > 0))
-                      or (A[0, 1] > 0 and (A[1, 0] > 0 and A[2, 2] > 0 or A[1, 2] > 0 and A[2, 0] > 0))
-                      or (A[0, 2] > 0 and (A[1, 0] > 0 and A[2, 1] > 0 or A[1, 1] > 0 and A[2, 0] > 0)))
-    if degenerate:
-        size = 0.0
-    # rounding: the inputs' errors (perm growth), the products' own roundings, underflow
-    c_rel, c_abs = consts[0], consts[1]
-    err = _perm_growth(A, E) + c_rel * U * (size + _perm_growth(A, E)) + c_abs * ETA
-    return err * (1.0 + 1e-6) + ETA, k, size, degenerate  # (the margin covers the rounding of this formula)
-
-
-# --- evaluation at a point from the coefficients ----------------------------------------------------------------
-
-
-@njit(cache=True, nogil=True)
-def _factor_weights(dim, x, fexp, fcoef, count, out):
-    """Bernstein basis values of one factor at its coordinates x[:dim]: out[j] = coef_j prod_i lambda_i^a_ji
-    with lambda = (1 - x_1 - ... - x_dim, x_1, ..., x_dim) (all >= 0)."""
-    l0 = 1.0
-    for j in range(dim):
-        l0 -= x[j]
-    if l0 < 0.0:
-        l0 = 0.0
-    for j in range(count):
-        w = fcoef[j] * l0 ** fexp[j, 0]
-        for i in range(dim):
-            w *= x[i] ** fexp[j, i + 1]
-        out[j] = w
-
-
-@njit(cache=True, nogil=True)
-def _eval_bernstein(b, x, fdim, fslot, fexp, fcoef, sizes, W, xs):
-    """sum_j w_j(x) b_j with the explicit basis weights: the polynomial's value at x."""
-    nf = sizes.shape[0]
-    for k in range(nf):
-        for j in range(fdim[k]):
-            xs[j] = x[fslot[k] + j]
-        _factor_weights(fdim[k], xs, fexp[k], fcoef[k], sizes[k], W[k])
-    nb = b.shape[0]
-    s = 0.0
-    for j in range(nb):
-        w = 1.0
-        r = j
-        post = nb
-        for k in range(nf):
-            post //= sizes[k]
-            w *= W[k, r // post]
-            r = r % post
-        s += w * b[j]
-    return s
-
-
-# --- the branch-and-bound --------------------------------------------------------------------------------------
-
-
-@njit(cache=True, nogil=True)
-def _apply_factor(src, dst, M, nk, pre, post):
-    """dst = M applied along one factor axis of a row-major coefficient tensor of shape (pre, nk, post)."""
-    for i0 in range(pre):
-        for j in range(post):
-            base = i0 * nk * post + j
-            for r in range(nk):
-                s = 0.0
-                for c in range(nk):
-                    s += M[r, c] * src[base + c * post]
-                dst[base + r * post] = s
-
-
-@njit(cache=True, nogil=True)
-def _split_line(src, lo, hi, nk, pre, post, tri):
-    """de Casteljau at 1/2 along one line factor of degree nk - 1: the halves [0, 1/2] into lo and
-    [1/2, 1] into hi (tri: (nk,) scratch). Each step averages two numbers: the same convex combinations as
-    the factor's child matrices, in as many roundings as the degree."""
-    p = nk - 1
-    for i0 in range(pre):
-        for j in range(post):
-            base = i0 * nk * post + j
-            for r in range(nk):
-                tri[r] = src[base + r * post]
-            lo[base] = tri[0]
-            hi[base + p * post] = tri[p]
-            for level in range(1, nk):
-                for r in range(nk - level):
-                    tri[r] = 0.5 * (tri[r] + tri[r + 1])
-                lo[base + level * post] = tri[0]
-                hi[base + (p - level) * post] = tri[nk - level - 1]
-
-
-@njit(cache=True, nogil=True)
-def _children(coef, out, work, S, nchildren, sizes, fdim, tri):
-    """All children's coefficients of one box into out[c], c row-major over the factors' child indices."""
-    nb = coef.shape[0]
-    count = 1
-    for i in range(nb):
-        out[0, i] = coef[i]
-    pre = 1
-    for k in range(sizes.shape[0]):
-        nk = sizes[k]
-        post = nb // (pre * nk)
-        nck = nchildren[k]
-        if nck > 1:
-            for t in range(count):
-                for i in range(nb):
-                    work[t, i] = out[t, i]
-            for t in range(count):
-                if fdim[k] == 1:
-                    _split_line(work[t], out[2 * t], out[2 * t + 1], nk, pre, post, tri)
-                else:
-                    for c in range(nck):
-                        _apply_factor(work[t], out[t * nck + c], S[k, c], nk, pre, post)
-            count *= nck
-        pre *= nk
-    return count
-
-
-@njit(cache=True, nogil=True)
-def _compose(parent, child, out):
-    """out = parent o child for affine maps stored as 3 x 4 matrices [A | o] (x -> A x + o)."""
-    for i in range(3):
-        for j in range(3):
-            out[i, j] = parent[i, 0] * child[0, j] + parent[i, 1] * child[1, j] + parent[i, 2] * child[2, j]
-        out[i, 3] = parent[i, 3] + parent[i, 0] * child[0, 3] + parent[i, 1] * child[1, 3] + parent[i, 2] * child[2, 3]
-
-
-@njit(cache=True, nogil=True)
-def _refine(b, err, level_err, tol, upper, argmin, max_depth, max_iter, S, nchildren, sizes, fdim, cmaps, ctrl,
-            vidx, bc, bmap, blow, bdepth, kids, work, pmap, cmap, tri):
-    """Best-first branch-and-bound of one cell from its root coefficients b.
-
-    Returns (lower, upper, depth, closed, boxes); ``argmin`` (3,) receives the box vertex where ``upper`` (the
-    smallest vertex coefficient seen: a value, up to rounding) was found. Boxes whose bound is at least
-    ``upper - tol`` are pruned (the bound of a pruned box stays >= the final upper - tol: upper only falls);
-    the lower bound is the smallest bound of the pruned, dropped and live boxes."""
-    nb = b.shape[0]
-    cap = blow.shape[0]
-    for i in range(nb):
-        bc[0, i] = b[i]
-    for i in range(3):
-        for j in range(4):
-            bmap[0, i, j] = 1.0 if i == j else 0.0
-    lo0 = np.inf
-    for i in range(nb):
-        if b[i] < lo0:
-            lo0 = b[i]
-    blow[0] = lo0 - err
-    bdepth[0] = 0
-    live = 1
-    pruned = np.inf
-    dropped = np.inf
-    maxd = 0
-    boxes = 0
-    it = 0
-    while live > 0:
-        bi = 0
-        for i in range(1, live):
-            if blow[i] < blow[bi]:
-                bi = i
-        if blow[bi] >= upper - tol:
-            break
-        if bdepth[bi] >= max_depth or it >= max_iter:
-            break
-        it += 1
-        d = bdepth[bi] + 1
-        if d > maxd:
-            maxd = d
-        for i in range(3):
-            for j in range(4):
-                pmap[i, j] = bmap[bi, i, j]
-        count = _children(bc[bi], kids, work, S, nchildren, sizes, fdim, tri)
-        live -= 1  # the parent's slot gets the last live box
-        if bi != live:
-            for i in range(nb):
-                bc[bi, i] = bc[live, i]
-            for i in range(3):
-                for j in range(4):
-                    bmap[bi, i, j] = bmap[live, i, j]
-            blow[bi] = blow[live]
-            bdepth[bi] = bdepth[live]
-        e_d = err + d * level_err
-        for c in range(count):
-            boxes += 1
-            cl = np.inf
-            for i in range(nb):
-                if kids[c, i] < cl:
-                    cl = kids[c, i]
-            cl -= e_d
-            vmin = np.inf
-            vbest = 0
-            for j in range(vidx.shape[0]):
-                v = kids[c, vidx[j]]
-                if v < vmin:
-                    vmin = v
-                    vbest = vidx[j]
-            keep = cl < upper - tol or vmin < upper
-            if not keep:
-                if cl < pruned:
-                    pruned = cl
-                continue
-            _compose(pmap, cmaps[c], cmap)
-            if vmin < upper:
-                upper = vmin
-                for a in range(3):
-                    argmin[a] = cmap[a, 3] + cmap[a, 0] * ctrl[vbest, 0] + cmap[a, 1] * ctrl[vbest, 1] + \
-                        cmap[a, 2] * ctrl[vbest, 2]
-            if cl >= upper - tol:
-                if cl < pruned:
-                    pruned = cl
-                continue
-            if live >= cap:
-                if cl < dropped:
-                    dropped = cl
-                continue
-            for i in range(nb):
-                bc[live, i] = kids[c, i]
-            for i in range(3):
-                for j in range(4):
-                    bmap[live, i, j] = cmap[i, j]
-            blow[live] = cl
-            bdepth[live] = d
-            live += 1
-    lower = min(pruned, dropped)
-    for i in range(live):
-        if blow[i] < lower:
-            lower = blow[i]
-    if lower > upper:
-        lower = upper
-    return lower, upper, maxd, upper - lower <= tol, boxes
-
-
-# --- polish ------------------------------------------------------------------------------------------------------
-
-
-@njit(cache=True, nogil=True)
-def _mono_derivs(c, exps, x, g, H, pw):
-    """Value, gradient g (3,) and Hessian H (3, 3) of sum_m c_m x^m (pw: (3, 8) scratch)."""
-    for a in range(3):
-        pw[a, 0] = 1.0
-        for k in range(1, 8):
-            pw[a, k] = pw[a, k - 1] * x[a]
-    f = 0.0
-    g0 = g1 = g2 = 0.0
-    h00 = h11 = h22 = h01 = h02 = h12 = 0.0
-    for m in range(c.shape[0]):
-        cm = c[m]
-        if cm == 0.0:
-            continue
-        e0, e1, e2 = exps[m, 0], exps[m, 1], exps[m, 2]
-        p0, p1, p2 = pw[0, e0], pw[1, e1], pw[2, e2]
-        d0 = e0 * pw[0, e0 - 1] if e0 > 0 else 0.0
-        d1 = e1 * pw[1, e1 - 1] if e1 > 0 else 0.0
-        d2 = e2 * pw[2, e2 - 1] if e2 > 0 else 0.0
-        f += cm * p0 * p1 * p2
-        g0 += cm * d0 * p1 * p2
-        g1 += cm * p0 * d1 * p2
-        g2 += cm * p0 * p1 * d2
-        if e0 > 1:
-            h00 += cm * e0 * (e0 - 1) * pw[0, e0 - 2] * p1 * p2
-        if e1 > 1:
-            h11 += cm * p0 * e1 * (e1 - 1) * pw[1, e1 - 2] * p2
-        if e2 > 1:
-            h22 += cm * p0 * p1 * e2 * (e2 - 1) * pw[2, e2 - 2]
-        h01 += cm * d0 * d1 * p2
-        h02 += cm * d0 * p1 * d2
-        h12 += cm * p0 * d1 * d2
-    g[0], g[1], g[2] = g0, g1, g2
-    H[0, 0], H[1, 1], H[2, 2] = h00, h11, h22
-    H[0, 1] = H[1, 0] = h01
-    H[0, 2] = H[2, 0] = h02
-    H[1, 2] = H[2, 1] = h12
-    return f
-
-
-@njit(cache=True, nogil=True)
-def _mono_value(c, exps, x, pw):
-    for a in range(3):
-        pw[a, 0] = 1.0
-        for k in range(1, 8):
-            pw[a, k] = pw[a, k - 1] * x[a]
-    f = 0.0
-    for m in range(c.shape[0]):
-        if c[m] != 0.0:
-            f += c[m] * pw[0, exps[m, 0]] * pw[1, exps[m, 1]] * pw[2, exps[m, 2]]
-    return f
-
-
-@njit(cache=True, nogil=True)
-def _two_sum(a, b):
-    """s = fl(a + b) and the exact error e: a + b = s + e exactly (Knuth; needs IEEE semantics, no fastmath)."""
-    s = a + b
-    bb = s - a
-    return s, (a - (s - bb)) + (b - bb)
-
-
-@njit(cache=True, nogil=True)
-def _inside(G, h, x):
-    """x lies in {G x <= h} exactly (the faces' rows hold 0 and +-1; sums of coordinates are tested with their
-    exact rounding errors, so a point on a simplex face is accepted and one a rounding beyond it is not)."""
-    for i in range(G.shape[0]):
-        s = 0.0
-        e = 0.0
-        for a in range(3):
-            if G[i, a] != 0.0:
-                s, ea = _two_sum(s, G[i, a] * x[a])
-                e += ea
-        if s > h[i] or (s == h[i] and e > 0.0):
-            return False
-    return True
-
-
-@njit(cache=True, nogil=True)
-def _free_basis(G, act, Q, Z, v):
-    """Z (nz, 3): an orthonormal basis of the directions along every active face (rows of G where act)."""
-    nq = 0
-    for i in range(G.shape[0]):
-        if not act[i] or nq == 3:
-            continue
-        for a in range(3):
-            v[a] = G[i, a]
-        for j in range(nq):
-            p = v[0] * Q[j, 0] + v[1] * Q[j, 1] + v[2] * Q[j, 2]
-            for a in range(3):
-                v[a] -= p * Q[j, a]
-        nv = math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
-        if nv > 1e-12:
-            for a in range(3):
-                Q[nq, a] = v[a] / nv
-            nq += 1
-    nz = 0
-    for e in range(3):
-        for a in range(3):
-            v[a] = 1.0 if a == e else 0.0
-        for j in range(nq):
-            p = v[0] * Q[j, 0] + v[1] * Q[j, 1] + v[2] * Q[j, 2]
-            for a in range(3):
-                v[a] -= p * Q[j, a]
-        for j in range(nz):
-            p = v[0] * Z[j, 0] + v[1] * Z[j, 1] + v[2] * Z[j, 2]
-            for a in range(3):
-                v[a] -= p * Z[j, a]
-        nv = math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
-        if nv > 1e-8 and nz < 3 - nq:
-            for a in range(3):
-                Z[nz, a] = v[a] / nv
-            nz += 1
-    return nz
-
-
-@njit(cache=True, nogil=True)
-def _reduced_step(Z, nz, g, H, gr, Hr, Lc, y, step):
-    """The Newton step on span(Z) where the reduced Hessian is positive definite, else steepest descent;
-    returns (is_newton, |reduced gradient|^2)."""
-    gnorm = 0.0
-    for i in range(nz):
-        gr[i] = Z[i, 0] * g[0] + Z[i, 1] * g[1] + Z[i, 2] * g[2]
-        gnorm += gr[i] * gr[i]
-        for j in range(nz):
-            s = 0.0
-            for a in range(3):
-                s += Z[i, a] * (H[a, 0] * Z[j, 0] + H[a, 1] * Z[j, 1] + H[a, 2] * Z[j, 2])
-            Hr[i, j] = s
-    ok = True
-    for i in range(nz):  # Cholesky of the reduced Hessian
-        for j in range(i + 1):
-            s = Hr[i, j]
-            for k in range(j):
-                s -= Lc[i, k] * Lc[j, k]
-            if i == j:
-                if s <= 1e-14 * (abs(Hr[i, i]) + 1e-300):
-                    ok = False
-                    break
-                Lc[i, i] = math.sqrt(s)
-            else:
-                Lc[i, j] = s / Lc[j, j]
-        if not ok:
-            break
-    if ok:
-        for i in range(nz):
-            s = -gr[i]
-            for k in range(i):
-                s -= Lc[i, k] * y[k]
-            y[i] = s / Lc[i, i]
-        for i in range(nz - 1, -1, -1):
-            s = y[i]
-            for k in range(i + 1, nz):
-                s -= Lc[k, i] * y[k]
-            y[i] = s / Lc[i, i]
-    else:
-        for i in range(nz):
-            y[i] = -gr[i]
-    for a in range(3):
-        s = 0.0
-        for i in range(nz):
-            s += Z[i, a] * y[i]
-        step[a] = s
-    return ok, gnorm
-
-
-@njit(cache=True, nogil=True)
-def _polish(b, x0, M, exps, G, h, iterations, out, c, pw, Q, Z, Hr, Lc, v, g, H, gr, y, step, xt):
-    """Projected Newton descent on the polynomial with Bernstein coefficients b from x0 (in the element).
-
-    Each iteration takes as active the faces the point is on where the descent direction leaves, a basis Z
-    of the directions along them, a Newton step on Z (steepest descent where the reduced Hessian is not
-    positive definite); a face the step would cross at once joins the active set and the step is recomputed;
-    then the longest feasible step is halved until the value falls. out receives the best point (x0 if
-    nothing lowers the value); the value there (monomial form, for ranking only) is returned."""
-    nb = b.shape[0]
-    for i in range(nb):
-        s = 0.0
-        for j in range(nb):
-            s += M[i, j] * b[j]
-        c[i] = s
-    for a in range(3):
-        out[a] = x0[a]
-    f = _mono_derivs(c, exps, out, g, H, pw)
-    ng = G.shape[0]
-    act = np.zeros(ng, dtype=np.bool_)
-    for _ in range(iterations):
-        for i in range(ng):
-            on = G[i, 0] * out[0] + G[i, 1] * out[1] + G[i, 2] * out[2] >= h[i] - 1e-13
-            act[i] = on and -(G[i, 0] * g[0] + G[i, 1] * g[1] + G[i, 2] * g[2]) > 0.0
-        nz = 0
-        ok = False
-        gnorm = 0.0
-        tmax = 0.0
-        for _a in range(ng + 1):
-            nz = _free_basis(G, act, Q, Z, v)
-            if nz == 0:
-                break
-            ok, gnorm = _reduced_step(Z, nz, g, H, gr, Hr, Lc, y, step)
-            if gnorm == 0.0:
-                nz = 0
-                break
-            tmax = 1.0 if ok else 1.0 / math.sqrt(gnorm)
-            block = -1
-            for i in range(ng):  # ratio test on the faces the step moves towards
-                gs = G[i, 0] * step[0] + G[i, 1] * step[1] + G[i, 2] * step[2]
-                if gs > 0.0:
-                    slack = h[i] - (G[i, 0] * out[0] + G[i, 1] * out[1] + G[i, 2] * out[2])
-                    if slack < 1e-13:
-                        slack = 0.0
-                        if not act[i]:
-                            block = i
-                    if slack / gs < tmax:
-                        tmax = slack / gs
-            if tmax > 0.0 or block < 0:
-                break
-            act[block] = True  # the step crosses a face the point is on: move along it instead
-        if nz == 0 or tmax <= 0.0:
-            break
-        improved = False
-        t = tmax
-        for _h in range(30):
-            for a in range(3):
-                xt[a] = out[a] + t * step[a]
-            for i in range(ng):  # clip onto the coordinate faces the step reached (exactly representable)
-                if abs(G[i, 0]) + abs(G[i, 1]) + abs(G[i, 2]) == 1.0:
-                    for a in range(3):
-                        if G[i, a] != 0.0:
-                            lim = h[i] / G[i, a]
-                            if (G[i, a] > 0.0 and xt[a] > lim) or (G[i, a] < 0.0 and xt[a] < lim):
-                                xt[a] = lim
-            if _inside(G, h, xt):
-                if _mono_value(c, exps, xt, pw) < f:
-                    improved = True
-                    break
-            t *= 0.5
-        if not improved:
-            break
-        for a in range(3):
-            out[a] = xt[a]
-        f = _mono_derivs(c, exps, out, g, H, pw)
-    return f
-
-
-# --- the driver ----------------------------------------------------------------------------------------------------
-
-
-@njit(cache=True, nogil=True)
-def _run_chunk(points, conn, ids, start, stop, cptr, cidx_, cval, col_a, col_b, col_w, col_off, xo, xi, xj, xw, do,
-               di, dj, dw, consts, sizes, S, nchildren, cmaps, ctrl, vidx, cidx, M, exps, G, h, fdim, fslot, fexp,
-               fcoef, nctrl, nx, rtol, flat_rtol, max_depth, max_iter, polish_iter, cap,
-               o_lower, o_value, o_argmin, o_err, o_scale, o_corner, o_depth, o_closed, o_flat, o_k, o_boxes,
-               o_lowroot, o_size):
-    """The kernel on the cells ids[start:stop] (outputs at the same positions), with scratch of its own."""
-    n = conn.shape[1]
-    nb = ctrl.shape[0]
-    nf = sizes.shape[0]
-    maxn = S.shape[2]
-    nchild = cmaps.shape[0]
-    ncol = col_a.shape[0]
-    D = np.empty((n, 3))
-    Pc = np.empty((nctrl, 3))
-    mP = np.empty((nctrl, 3))
-    eP = np.empty((nctrl, 3))
-    col = np.empty((ncol, 3))
-    ecol = np.empty((ncol, 3))
-    X = np.empty((nx, 3))
-    b = np.empty(nb)
-    A = np.empty((3, 3))
-    E = np.empty((3, 3))
-    bc = np.empty((cap, nb))
-    bmap = np.empty((cap, 3, 4))
-    blow = np.empty(cap)
-    bdepth = np.empty(cap, dtype=np.int64)
-    kids = np.empty((nchild, nb))
-    work = np.empty((nchild, nb))
-    pmap = np.empty((3, 4))
-    cmap = np.empty((3, 4))
-    W = np.empty((nf, maxn))
-    xs = np.empty(3)
-    argmin = np.empty(3)
-    x = np.empty(3)
-    pc = np.empty(nb)
-    pw = np.empty((3, 8))
-    Q = np.empty((3, 3))
-    Z = np.empty((3, 3))
-    Hr = np.empty((3, 3))
-    Lc = np.zeros((3, 3))
-    v3 = np.empty(3)
-    g3 = np.empty(3)
-    H3 = np.empty((3, 3))
-    gr = np.empty(3)
-    y3 = np.empty(3)
-    st3 = np.empty(3)
-    xt = np.empty(3)
-    tri = np.empty(maxn)
-    for t in range(start, stop):
-        err, k, size, degenerate = _cell_coefficients(points, conn, ids[t], cptr, cidx_, cval, col_a, col_b, col_w,
-                                                      col_off, xo, xi, xj, xw, do, di, dj, dw, consts, D, Pc, mP, eP,
-                                                      col, ecol, X, b, A, E)
-        scale = 0.0
-        lo = np.inf
-        for i in range(nb):
-            ab = abs(b[i])
-            if ab > scale:
-                scale = ab
-            if b[i] < lo:
-                lo = b[i]
-        corner = np.inf
-        for j in range(cidx.shape[0]):
-            if b[cidx[j]] < corner:
-                corner = b[cidx[j]]
-        upper = np.inf
-        best_v = 0
-        for j in range(vidx.shape[0]):
-            if b[vidx[j]] < upper:
-                upper = b[vidx[j]]
-                best_v = vidx[j]
-        for a in range(3):
-            argmin[a] = ctrl[best_v, a]
-        o_scale[t] = scale
-        o_corner[t] = corner
-        o_k[t] = k
-        o_size[t] = size
-        o_lowroot[t] = lo - err
-        # flat: det J nowhere larger than flat_rtol times the size of its terms; where those terms are near the
-        # subnormal range float64 cannot tell (that is not flatness: exact arithmetic decides such cells)
-        flat = degenerate or (size > 2.0**-900 and scale <= flat_rtol * size)
-        o_flat[t] = flat
-        tol = rtol * scale
-        if 4.0 * err > tol:
-            tol = 4.0 * err
-        lower = lo - err
-        depth = 0
-        closed = lower >= upper - tol
-        boxes = 0
-        value = upper
-        verr = err
-        if flat:
-            closed = False
-        elif not closed:
-            # polish first, from the best vertex: a near-optimal value from the start prunes boxes at once
-            verr = err + consts[4] * U * scale + consts[5] * ETA
-            _polish(b, argmin, M, exps, G, h, polish_iter, x, pc, pw, Q, Z, Hr, Lc, v3, g3, H3, gr, y3, st3, xt)
-            v_new = _eval_bernstein(b, x, fdim, fslot, fexp, fcoef, sizes, W, xs)
-            if v_new < value:
-                value = v_new
-                for a in range(3):
-                    argmin[a] = x[a]
-            level_err = consts[2] * U * scale + consts[3] * ETA
-            for a in range(3):
-                x[a] = argmin[a]
-            lower, upper, depth, closed, boxes = _refine(b, err, level_err, tol, value, x, max_depth, max_iter, S,
-                                                         nchildren, sizes, fdim, cmaps, ctrl, vidx, bc, bmap, blow,
-                                                         bdepth, kids, work, pmap, cmap, tri)
-            if depth == 0:
-                depth = 1  # the point may have left the root's vertices: evaluated, not a coefficient
-            if upper < value:  # the search found a lower vertex than the polished point: polish from there
-                _polish(b, x, M, exps, G, h, polish_iter, st3, pc, pw, Q, Z, Hr, Lc, v3, g3, H3, gr, y3, xs, xt)
-                v1 = _eval_bernstein(b, x, fdim, fslot, fexp, fcoef, sizes, W, xs)
-                v2 = _eval_bernstein(b, st3, fdim, fslot, fexp, fcoef, sizes, W, xs)
-                if v2 < v1:
-                    for a in range(3):
-                        x[a] = st3[a]
-                    v1 = v2
-                if v1 < value:
-                    value = v1
-                    for a in range(3):
-                        argmin[a] = x[a]
-        if lower > value + verr:
-            lower = value + verr  # a lower bound never exceeds a value (only rounding could say so)
-        o_lower[t] = lower
-        o_value[t] = value
-        o_err[t] = verr
-        for a in range(3):
-            o_argmin[t, a] = argmin[a]
-        o_depth[t] = depth
-        o_closed[t] = closed
-        o_boxes[t] = boxes
-
-
-@njit(cache=True, parallel=True)
-def _run_cells(points, conn, ids, cptr, cidx_, cval, col_a, col_b, col_w, col_off, xo, xi, xj, xw, do, di, dj, dw,
-               consts, sizes, S, nchildren, cmaps, ctrl, vidx, cidx, M, exps, G, h, fdim, fslot, fexp, fcoef, nctrl, nx,
-               rtol, flat_rtol, max_depth, max_iter, polish_iter, cap,
-               o_lower, o_value, o_argmin, o_err, o_scale, o_corner, o_depth, o_closed, o_flat, o_k, o_boxes,
-               o_lowroot, o_size):
-    n_ids = ids.shape[0]
-    nchunks = (n_ids + _CHUNK - 1) // _CHUNK
-    for ch in prange(nchunks):
-        _run_chunk(points, conn, ids, ch * _CHUNK, min(ch * _CHUNK + _CHUNK, n_ids), cptr, cidx_, cval, col_a, col_b,
-                   col_w, col_off, xo, xi, xj, xw, do, di, dj, dw, consts, sizes, S, nchildren, cmaps, ctrl, vidx,
-                   cidx, M, exps, G, h, fdim, fslot, fexp, fcoef, nctrl, nx, rtol, flat_rtol, max_depth, max_iter,
-                   polish_iter, cap, o_lower, o_value, o_argmin, o_err, o_scale, o_corner, o_depth, o_closed, o_flat,
-                   o_k, o_boxes, o_lowroot, o_size)
-
-
-@njit(cache=True, nogil=True)
-def _coefficients_chunk(points, conn, ids, start, stop, cptr, cidx_, cval, col_a, col_b, col_w, col_off, xo, xi, xj,
-                        xw, do, di, dj, dw, consts, nctrl, nx, o_b, o_err, o_k, o_size):
-    n = conn.shape[1]
-    nb = o_b.shape[1]
-    ncol = col_a.shape[0]
-    D = np.empty((n, 3))
-    Pc = np.empty((nctrl, 3))
-    mP = np.empty((nctrl, 3))
-    eP = np.empty((nctrl, 3))
-    col = np.empty((ncol, 3))
-    ecol = np.empty((ncol, 3))
-    X = np.empty((nx, 3))
-    b = np.empty(nb)
-    A = np.empty((3, 3))
-    E = np.empty((3, 3))
-    for t in range(start, stop):
-        err, k, size, _ = _cell_coefficients(points, conn, ids[t], cptr, cidx_, cval, col_a, col_b, col_w, col_off,
-                                             xo, xi, xj, xw, do, di, dj, dw, consts, D, Pc, mP, eP, col, ecol, X, b, A,
-                                             E)
-        for i in range(nb):
-            o_b[t, i] = b[i]
-        o_err[t] = err
-        o_k[t] = k
-        o_size[t] = size
-
-
-@njit(cache=True, parallel=True)
-def _coefficients(points, conn, ids, cptr, cidx_, cval, col_a, col_b, col_w, col_off, xo, xi, xj, xw, do, di, dj, dw,
-                  consts, nctrl, nx, o_b, o_err, o_k, o_size):
-    n_ids = ids.shape[0]
-    nchunks = (n_ids + _CHUNK - 1) // _CHUNK
-    for ch in prange(nchunks):
-        _coefficients_chunk(points, conn, ids, ch * _CHUNK, min(ch * _CHUNK + _CHUNK, n_ids), cptr, cidx_, cval,
-                            col_a, col_b, col_w, col_off, xo, xi, xj, xw, do, di, dj, dw, consts, nctrl, nx, o_b, o_err,
-                            o_k, o_size)
-
-
-@njit(cache=True)
-def _evaluate(b, X, fdim, fslot, fexp, fcoef, sizes, maxn, out):
-    W = np.empty((sizes.shape[0], maxn))
-    xs = np.empty(3)
-    for m in range(b.shape[0]):
-        out[m] = _eval_bernstein(b[m], X[m], fdim, fslot, fexp, fcoef, sizes, W, xs)
-
+_CHUNK = 4096  # cells per task on a thread (each task allocates its scratch once)
 
 # --- Python-facing wrappers ------------------------------------------------------------------------------------------
+def source_hash() -> str:
+    """SHA-256 of the kernel's source (:mod:`hexsos_plugins._kernel_src`): the compiled extension records it."""
+    return hashlib.sha256((Path(__file__).with_name("_kernel_src.py")).read_bytes()).hexdigest()
+
+
+def _load():
+    """The compiled extension if it exists and was built from this source (``HEXSOS_KERNEL=jit`` forces the
+    just-in-time path, ``=aot`` requires the extension); else numba's just-in-time compilation of the source."""
+    want = os.environ.get("HEXSOS_KERNEL", "").lower()
+    if want != "jit":
+        try:
+            from . import _kernel_aot as aot
+
+            if aot.source_hash_prefix() == int(source_hash()[:15], 16):
+                return aot, "aot"
+            if want == "aot":
+                raise ImportError("hexsos_plugins._kernel_aot was built from another source")
+        except ImportError:
+            if want == "aot":
+                raise
+    from . import _kernel_src as jit
+
+    return jit, "jit"
+
+
+_impl, _KIND = _load()
+
+
+def implementation() -> str:
+    """``"aot"`` (the extension compiled at install) or ``"jit"`` (numba, compiled at first use, cached)."""
+    return _KIND
+
+
 _DIMS = {"line": 1, "tri": 2, "tet": 3}
 
 
@@ -961,13 +179,126 @@ def _composed_child_maps(sp) -> np.ndarray:
 
 
 _TABLES = {}
+_TABLE_FILE = Path(__file__).with_name("_tables.npz")
+_TABLE_FIELDS = ("cptr", "cidx_", "cval", "col_a", "col_b", "col_w", "col_off", "xo", "xi", "xj", "xw", "do", "di",
+                 "dj", "dw", "consts", "sizes", "S", "nchildren", "cmaps", "ctrl", "vidx", "cidx", "M", "exps", "G",
+                 "h", "fdim", "fslot", "fexp", "fcoef")
+_TABLE_SCALARS = ("nb", "n_nodes", "nctrl", "nx")
+
+
+def tables_fingerprint() -> str:
+    """SHA-256 of the sources the tables come from (the registry, the formulation, this module)."""
+    h = hashlib.sha256()
+    for name in ("elements.py", "jacobian.py", "kernel.py"):
+        h.update(Path(__file__).with_name(name).read_bytes())
+    return h.hexdigest()
+
+
+def write_tables(path=_TABLE_FILE) -> str:
+    """Compute every type's tables (exact rational arithmetic, rounded) and save them for fast loading."""
+    from .elements import CELL_TYPES
+
+    data = {"fingerprint": np.array(tables_fingerprint())}
+    for name in CELL_TYPES:
+        t = Tables(name)
+        for f in _TABLE_FIELDS:
+            data[f"{name}/{f}"] = getattr(t, f)
+        for f in _TABLE_SCALARS:
+            data[f"{name}/{f}"] = np.array(getattr(t, f))
+    tmp = Path(path).with_suffix(".tmp.npz")
+    np.savez(tmp, **data)
+    os.replace(tmp, path)
+    return str(path)
+
+
+_SAVED = None
+
+
+def _saved(name):
+    """The tables of a type from the file written at build time, if it exists and matches the sources (only
+    that type's arrays are read)."""
+    global _SAVED
+    if _SAVED is None:
+        _SAVED = False
+        try:
+            z = np.load(_TABLE_FILE)
+            if str(z["fingerprint"]) == tables_fingerprint():
+                _SAVED = z
+        except (OSError, KeyError, ValueError):
+            pass
+    if not _SAVED or f"{name}/nb" not in _SAVED.files:
+        return None
+    t = Tables.__new__(Tables)
+    t.name = name
+    for f in _TABLE_FIELDS:
+        setattr(t, f, np.ascontiguousarray(_SAVED[f"{name}/{f}"]))
+    for f in _TABLE_SCALARS:
+        setattr(t, f, int(_SAVED[f"{name}/{f}"]))
+    return t
 
 
 def tables(name: str) -> Tables:
-    """The kernel's tables of a cell type (built once per process)."""
+    """The kernel's tables of a cell type: from the file written at build time, else computed (once per process)."""
     if name not in _TABLES:
-        _TABLES[name] = Tables(name)
+        _TABLES[name] = _saved(name) or Tables(name)
     return _TABLES[name]
+
+
+_THREADS = 1  # threads the kernel may use (set_threads); chunks of _CHUNK cells are spread over them
+_POOL = None
+#: The Python threads that ran the chunks of the last multi-threaded call (for tests and benchmarks).
+last_threads: set = set()
+
+
+def set_threads(n: int) -> int:
+    """Let the kernel use n threads (its chunk functions release the GIL); returns the previous setting."""
+    global _THREADS
+    old, _THREADS = _THREADS, max(1, int(n))
+    return old
+
+
+def _spread(fn, n_ids, args_of):
+    """fn(*args_of(start, stop)) over chunks of cells: inline for one thread or a small input, else on a pool."""
+    global _POOL, last_threads
+    if _THREADS <= 1 or n_ids <= _CHUNK:
+        fn(*args_of(0, n_ids))
+        return
+    import threading
+    from concurrent.futures import ThreadPoolExecutor
+
+    if _POOL is None or _POOL._max_workers != _THREADS:
+        _POOL = ThreadPoolExecutor(max_workers=_THREADS, thread_name_prefix="hexsos-kernel")
+    # about four chunks per thread keeps them busy without many tiny tasks
+    size = max(_CHUNK, -(-n_ids // (4 * _THREADS)))
+    seen = set()
+
+    def task(start, stop):
+        seen.add(threading.get_ident())
+        fn(*args_of(start, stop))
+
+    futures = [_POOL.submit(task, s, min(s + size, n_ids)) for s in range(0, n_ids, size)]
+    for f in futures:
+        f.result()
+    last_threads = seen
+
+
+def _run_outputs(m):
+    return {"lower": np.empty(m), "value": np.empty(m), "argmin": np.empty((m, 3)), "err": np.empty(m),
+            "scale": np.empty(m), "corner": np.empty(m), "depth": np.empty(m, dtype=np.int64),
+            "closed": np.empty(m, dtype=np.bool_), "flat": np.empty(m, dtype=np.bool_),
+            "k": np.empty(m, dtype=np.int64), "boxes": np.empty(m, dtype=np.int64), "lowroot": np.empty(m),
+            "size": np.empty(m)}
+
+
+def _run_args(points, conn, ids, t, out, start, stop, rtol=1e-9, flat_rtol=1e-12, max_depth=30, max_iter=2000,
+              polish_iter=30, cap=256):
+    """The arguments of the entry point run_chunk, in its order (also used to derive its compiled signature)."""
+    return ((points, conn, ids, int(start), int(stop)) + t.formulation_args +
+            (t.sizes, t.S, t.nchildren, t.cmaps, t.ctrl, t.vidx, t.cidx, t.M, t.exps, t.G, t.h, t.fdim, t.fslot,
+             t.fexp, t.fcoef, t.nctrl, t.nx, float(rtol), float(flat_rtol), int(max_depth), int(max_iter),
+             int(polish_iter), int(cap), out["lower"], out["value"], out["argmin"], out["err"], out["scale"],
+             out["corner"], out["depth"], out["closed"], out["flat"], out["k"], out["boxes"], out["lowroot"],
+             out["size"]))
 
 
 def run_cells(points, conn, ids, name, *, rtol=1e-9, flat_rtol=1e-12, max_depth=30, max_iter=2000, polish_iter=30,
@@ -980,18 +311,17 @@ def run_cells(points, conn, ids, name, *, rtol=1e-9, flat_rtol=1e-12, max_depth=
     ``depth``, ``closed``, ``flat``, ``boxes``, ``lowroot`` (the root bound min b - err)."""
     t = tables(name)
     ids = np.ascontiguousarray(ids, dtype=np.int64)
+    points = np.ascontiguousarray(points, dtype=np.float64)
+    conn = np.ascontiguousarray(conn, dtype=np.int64)
     m = int(ids.size)
-    out = {"lower": np.empty(m), "value": np.empty(m), "argmin": np.empty((m, 3)), "err": np.empty(m),
-           "scale": np.empty(m), "corner": np.empty(m), "depth": np.empty(m, dtype=np.int64),
-           "closed": np.empty(m, dtype=np.bool_), "flat": np.empty(m, dtype=np.bool_),
-           "k": np.empty(m, dtype=np.int64), "boxes": np.empty(m, dtype=np.int64), "lowroot": np.empty(m),
-           "size": np.empty(m)}
-    _run_cells(points, conn, ids, *t.formulation_args, t.sizes, t.S, t.nchildren, t.cmaps, t.ctrl, t.vidx, t.cidx,
-               t.M, t.exps, t.G, t.h, t.fdim, t.fslot, t.fexp, t.fcoef, t.nctrl, t.nx, float(rtol), float(flat_rtol),
-               int(max_depth), int(max_iter), int(polish_iter), int(cap),
-               out["lower"], out["value"], out["argmin"], out["err"], out["scale"], out["corner"], out["depth"],
-               out["closed"], out["flat"], out["k"], out["boxes"], out["lowroot"], out["size"])
+    out = _run_outputs(m)
+    _spread(_impl.run_chunk, m, lambda a, b: _run_args(points, conn, ids, t, out, a, b, rtol, flat_rtol, max_depth,
+                                                        max_iter, polish_iter, cap))
     return out
+
+
+def _coefficient_args(points, conn, ids, t, outs, start, stop):
+    return (points, conn, ids, int(start), int(stop)) + t.formulation_args + (t.nctrl, t.nx) + tuple(outs)
 
 
 def coefficients(points, conn, ids, name):
@@ -999,54 +329,29 @@ def coefficients(points, conn, ids, name):
     the scaling exponents k (world det J = scaled times 2^(3 k)) and the sizes of det J's terms."""
     t = tables(name)
     ids = np.ascontiguousarray(ids, dtype=np.int64)
-    b = np.empty((ids.size, t.nb))
-    err = np.empty(ids.size)
-    k = np.empty(ids.size, dtype=np.int64)
-    size = np.empty(ids.size)
-    _coefficients(points, conn, ids, *t.formulation_args, t.nctrl, t.nx, b, err, k, size)
-    return b, err, k, size
+    points = np.ascontiguousarray(points, dtype=np.float64)
+    conn = np.ascontiguousarray(conn, dtype=np.int64)
+    outs = (np.empty((ids.size, t.nb)), np.empty(ids.size), np.empty(ids.size, dtype=np.int64), np.empty(ids.size))
+    _spread(_impl.coefficients_chunk, int(ids.size), lambda s, e: _coefficient_args(points, conn, ids, t, outs, s, e))
+    return outs
+
+
+def _evaluate_args(b, X, t, out):
+    return (b, X, t.fdim, t.fslot, t.fexp, t.fcoef, t.sizes, int(t.S.shape[2]), out)
+
+
+def _polish_args(b, X0, t, iterations, out, vals):
+    return (b, X0, t.M, t.exps, t.G, t.h, int(iterations), t.fdim, t.fslot, t.fexp, t.fcoef, t.sizes,
+            int(t.S.shape[2]), out, vals)
 
 
 def evaluate(b, X, name):
     """The polynomials with coefficients b (m, nb) at the points X (m, 3) (explicit Bernstein weights)."""
     t = tables(name)
-    out = np.empty(b.shape[0])
-    _evaluate(np.ascontiguousarray(b, dtype=np.float64), np.ascontiguousarray(X, dtype=np.float64), t.fdim,
-              t.fslot, t.fexp, t.fcoef, t.sizes, int(t.S.shape[2]), out)
+    out = np.empty(np.shape(b)[0])
+    _impl.evaluate(*_evaluate_args(np.ascontiguousarray(b, dtype=np.float64), np.ascontiguousarray(X, dtype=np.float64),
+                                   t, out))
     return out
-
-
-@njit(cache=True)
-def _polish_many(b, X0, M, exps, G, h, iterations, fdim, fslot, fexp, fcoef, sizes, maxn, out, vals):
-    nb = b.shape[1]
-    pc = np.empty(nb)
-    pw = np.empty((3, 8))
-    Q = np.empty((3, 3))
-    Z = np.empty((3, 3))
-    Hr = np.empty((3, 3))
-    Lc = np.zeros((3, 3))
-    v3 = np.empty(3)
-    g3 = np.empty(3)
-    H3 = np.empty((3, 3))
-    gr = np.empty(3)
-    y3 = np.empty(3)
-    st3 = np.empty(3)
-    xt = np.empty(3)
-    x = np.empty(3)
-    W = np.empty((sizes.shape[0], maxn))
-    xs = np.empty(3)
-    for m in range(b.shape[0]):
-        _polish(b[m], X0[m], M, exps, G, h, iterations, x, pc, pw, Q, Z, Hr, Lc, v3, g3, H3, gr, y3, st3, xt)
-        v_new = _eval_bernstein(b[m], x, fdim, fslot, fexp, fcoef, sizes, W, xs)
-        v_old = _eval_bernstein(b[m], X0[m], fdim, fslot, fexp, fcoef, sizes, W, xs)
-        if v_new < v_old:
-            for a in range(3):
-                out[m, a] = x[a]
-            vals[m] = v_new
-        else:
-            for a in range(3):
-                out[m, a] = X0[m, a]
-            vals[m] = v_old
 
 
 def polish(b, X0, name, *, iterations=30):
@@ -1057,19 +362,23 @@ def polish(b, X0, name, *, iterations=30):
     X0 = np.ascontiguousarray(X0, dtype=np.float64)
     out = np.empty_like(X0)
     vals = np.empty(b.shape[0])
-    _polish_many(b, X0, t.M, t.exps, t.G, t.h, int(iterations), t.fdim, t.fslot, t.fexp, t.fcoef, t.sizes,
-                 int(t.S.shape[2]), out, vals)
+    _impl.polish_many(*_polish_args(b, X0, t, iterations, out, vals))
     return out, vals
 
 
-@njit(cache=True, parallel=True)
-def _thread_ids(n, out):
-    for i in prange(n):
-        out[i] = numba.get_thread_id()
-
-
-def threads_used(n: int = 4096) -> int:
-    """How many distinct threads a parallel kernel loop of n iterations runs on now (numba's current setting)."""
-    out = np.zeros(int(n), dtype=np.int64)
-    _thread_ids(int(n), out)
-    return int(np.unique(out).size)
+def entry_point_arguments() -> dict:
+    """Example arguments of every entry point of the compiled source (a trilinear hexahedron), by name: the
+    ahead-of-time build derives the exported signatures from them."""
+    t = tables("hexahedron")
+    P = np.ascontiguousarray(np.eye(8, 3))
+    conn = np.arange(8, dtype=np.int64)[None]
+    ids = np.zeros(1, dtype=np.int64)
+    b = np.zeros((1, t.nb))
+    X = np.zeros((1, 3))
+    coeff_outs = (np.empty((1, t.nb)), np.empty(1), np.empty(1, dtype=np.int64), np.empty(1))
+    return {
+        "run_chunk": _run_args(P, conn, ids, t, _run_outputs(1), 0, 1),
+        "coefficients_chunk": _coefficient_args(P, conn, ids, t, coeff_outs, 0, 1),
+        "evaluate": _evaluate_args(b, X, t, np.empty(1)),
+        "polish_many": _polish_args(b, X, t, 30, np.empty((1, 3)), np.empty(1)),
+    }

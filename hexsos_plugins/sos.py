@@ -38,7 +38,6 @@ from dataclasses import dataclass, field
 from itertools import product
 
 import numpy as np
-import scipy.sparse as sp
 
 from .errors import DependencyError, InvalidInputError, SolverError
 from .hexahedron import MONOMIALS, UNIT_ROUND
@@ -145,6 +144,8 @@ RELAXATIONS = {
 
 def _structure(relax: Relaxation):
     """Support monomials and, per block, the (support x svec) matrix mapping svec(Q) to coefficients."""
+    import scipy.sparse as sp  # imported here: the registry costs nothing until a solver is built
+
     support = monomials_upto(relax.degree)
     index = {m: i for i, m in enumerate(support)}
     mats = []
@@ -207,6 +208,8 @@ class SOSSolver:
             relax = RELAXATIONS[relaxation]
         else:
             raise InvalidInputError(f"unknown relaxation {relaxation!r}: expected one of {sorted(RELAXATIONS)}")
+        import scipy.sparse as sp
+
         try:
             import clarabel
         except ImportError as exc:  # pragma: no cover - clarabel is a core dependency

@@ -21,14 +21,16 @@ def _same(a, b):
 
 
 def test_two_threads_run_in_the_kernel_and_agree(sample):
-    from hexsos_plugins import certify, kernel
+    from hexsos_plugins import kernel
 
     P, H, ref = sample
-    with certify._threads(2):
-        assert kernel.threads_used() == 2  # the kernel's loops really run on two threads
-    with certify._threads(1):
-        assert kernel.threads_used() == 1
-    _same(ref, hs.check(P, H, jobs=2))
+    kernel.last_threads = set()
+    two = hs.check(P, H, jobs=2)
+    assert len(kernel.last_threads) == 2  # the kernel's chunks really ran on two threads
+    _same(ref, two)
+    kernel.last_threads = set()
+    hs.check(P, H, jobs=1)
+    assert kernel.last_threads == set()  # one thread: inline, no pool
 
 
 def test_processes(sample):

@@ -1,0 +1,36 @@
+"""Ahead-of-time compilation of the kernel (numba's pycc), run by ``setup.py`` when the package is built.
+
+The extension ``hexsos_plugins._kernel_aot`` holds the entry points of :mod:`hexsos_plugins._kernel_src`,
+compiled from that same source with numba's default flags (no fastmath), with signatures derived from
+:func:`hexsos_plugins.kernel.entry_point_arguments`, and a fingerprint of the source:
+:mod:`hexsos_plugins.kernel` uses the extension only when the fingerprint matches the source it ships with
+(after an edit, until the package is built again, the source is compiled just in time instead).
+Importing it needs numpy only: no numba at run time, no compilation on first use. The same build writes
+``_tables.npz``, every type's tables (:func:`hexsos_plugins.kernel.write_tables`), checked against a fingerprint
+of their sources when loaded.
+"""
+
+from __future__ import annotations
+
+import os
+
+__all__ = ["extension"]
+
+
+def extension():
+    """A setuptools Extension that compiles the kernel (needs numba and numpy at build time)."""
+    os.environ["HEXSOS_KERNEL"] = "jit"  # the kernel module must not look for the extension being built
+    import numba
+    from numba.pycc import CC
+
+    from hexsos_plugins import _kernel_src, kernel
+
+    cc = CC("_kernel_aot", source_module="hexsos_plugins._kernel_src")
+    for name, args in kernel.entry_point_arguments().items():
+        sig = numba.void(*[numba.typeof(a) for a in args])
+        cc.export(name, sig)(getattr(_kernel_src, name).py_func)
+    ns = {}
+    exec(f"def source_hash_prefix():\n    return {int(kernel.source_hash()[:15], 16)}\n", ns)
+    cc.export("source_hash_prefix", "i8()")(ns["source_hash_prefix"])
+    kernel.write_tables()  # the tables too (exact rational arithmetic once, at build time)
+    return cc.distutils_extension()
