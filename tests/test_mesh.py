@@ -419,7 +419,7 @@ def test_boundary_of_a_mixed_mesh_is_the_box_surface(gmsh_meshes):
     b = m.boundary(return_cell=True)
     assert len(b["triangle"]) and len(b["quad"])
     P = m.points
-    area, centre = 0.0, P.mean(axis=0)
+    area = 0.0
     cells_centroid = {}
     for _, t, s, e in m.cell_blocks:
         conn = [c for (bb, tt, ss, ee), (_, c) in zip(m.cell_blocks, m.cells) if ss == s][0]

@@ -51,12 +51,12 @@ import meshio
 from ..errors import MeshFormatError, MeshReadError, UnsupportedFormatError
 from ..mesh import Mesh
 from ._common import (
+    _READ_ALIASES,
     _ext_formats,
     _few_exts,
     _meshio_read,
     _name,
     _ParseError,
-    _READ_ALIASES,
     _reader_formats,
     _short,
     fix_read_order,

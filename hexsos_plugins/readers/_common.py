@@ -65,7 +65,9 @@ def _reader_formats() -> set:
 
 def _writer_formats() -> set:
     try:
-        from meshio._helpers import _writer_map  # private, but the only list of writers meshio has
+        from meshio._helpers import (
+            _writer_map,  # private, but the only list of writers meshio has
+        )
 
         return set(_writer_map) - set(_NO_WRITE)
     except Exception:  # pragma: no cover - a later meshio

@@ -9,6 +9,7 @@ import os
 import tempfile
 from pathlib import Path
 
+import meshio
 import numpy as np
 
 from ._common import _meshio_read, _ParseError, fix_read_order
