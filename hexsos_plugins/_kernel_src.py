@@ -80,8 +80,8 @@ def _perm_growth(A, E):
 
 
 @njit(cache=True, nogil=True)
-def _cell_coefficients(points, conn, m, cptr, cidx_, cval, col_a, col_b, col_w, col_off, xo, xi, xj, xw, do, di, dj,
-                       dw, consts, D, P, mP, eP, col, ecol, X, b, A, E):
+def _cell_coefficients(points, conn, m, cptr, cidx_, cval, col_a, col_b, col_w, col_off, xp, xi, xj, xw, dp, di, dj,
+                       dw, consts, D, P, eP, col, X, b, A, E):
     """det J's Bernstein coefficients b of cell m, by Bernstein products of the Jacobian's columns.
 
     Steps: node offsets D (scaled by 2^-k), control points P = C D, column coefficients w (P_b - P_a), the
@@ -96,66 +96,81 @@ def _cell_coefficients(points, conn, m, cptr, cidx_, cval, col_a, col_b, col_w, 
         for i in range(nb):
             b[i] = 0.0
         return 0.0, 0, 0.0, True
-    # control points and the bounds of their rounding (per component)
+    # control points and the bounds of their rounding (per component; relative terms only: every underflow term
+    # is in the per-type constant c_abs)
     nctrl = P.shape[0]
     for r in range(nctrl):
-        for c in range(3):
-            s = 0.0
-            t = 0.0
-            for p in range(cptr[r], cptr[r + 1]):
-                w = cval[p]
-                s += w * D[cidx_[p], c]
-                t += abs(w) * abs(D[cidx_[p], c])
-            P[r, c] = s
-            mP[r, c] = t
-        nnz = cptr[r + 1] - cptr[r]
-        for c in range(3):
-            eP[r, c] = (nnz + 3.0) * U * mP[r, c] + (3.0 * nnz + 4.0) * ETA
+        s0 = s1 = s2 = 0.0
+        t0 = t1 = t2 = 0.0
+        p0, p1 = cptr[r], cptr[r + 1]
+        for p in range(p0, p1):
+            w = cval[p]
+            i = cidx_[p]
+            aw = abs(w)
+            x0, x1, x2 = D[i, 0], D[i, 1], D[i, 2]
+            s0 += w * x0
+            s1 += w * x1
+            s2 += w * x2
+            t0 += aw * abs(x0)
+            t1 += aw * abs(x1)
+            t2 += aw * abs(x2)
+        P[r, 0], P[r, 1], P[r, 2] = s0, s1, s2
+        c = (p1 - p0 + 3.0) * U
+        eP[r, 0], eP[r, 1], eP[r, 2] = c * t0, c * t1, c * t2
     # the columns' coefficients, their largest magnitudes A and errors E per (component, direction)
     for d in range(3):
-        for c in range(3):
-            A[c, d] = 0.0
-            E[c, d] = 0.0
+        a0 = a1 = a2 = 0.0
+        e0 = e1 = e2 = 0.0
         for e in range(col_off[d], col_off[d + 1]):
             wa = col_w[e]
             ia = col_a[e]
             ib = col_b[e]
-            for c in range(3):
-                v = wa * (P[ib, c] - P[ia, c])
-                col[e, c] = v
-                ev = U * abs(v) + wa * (eP[ia, c] + eP[ib, c])
-                ecol[e, c] = ev
-                if abs(v) > A[c, d]:
-                    A[c, d] = abs(v)
-                if ev > E[c, d]:
-                    E[c, d] = ev
-    for c in range(3):
-        for d in range(3):
-            E[c, d] = E[c, d] * (1.0 + 4.0 * U) + ETA
-    # X = column 1 x column 2 (each component a difference of two Bernstein products)
-    nx = X.shape[0]
-    for g in range(nx):
-        X[g, 0] = 0.0
-        X[g, 1] = 0.0
-        X[g, 2] = 0.0
+            v0 = wa * (P[ib, 0] - P[ia, 0])
+            v1 = wa * (P[ib, 1] - P[ia, 1])
+            v2 = wa * (P[ib, 2] - P[ia, 2])
+            col[e, 0] = v0
+            col[e, 1] = v1
+            col[e, 2] = v2
+            v0 = abs(v0)
+            v1 = abs(v1)
+            v2 = abs(v2)
+            a0 = max(a0, v0)
+            a1 = max(a1, v1)
+            a2 = max(a2, v2)
+            e0 = max(e0, U * v0 + wa * (eP[ia, 0] + eP[ib, 0]))
+            e1 = max(e1, U * v1 + wa * (eP[ia, 1] + eP[ib, 1]))
+            e2 = max(e2, U * v2 + wa * (eP[ia, 2] + eP[ib, 2]))
+        A[0, d], A[1, d], A[2, d] = a0, a1, a2
+        f = 1.0 + 4.0 * U
+        E[0, d], E[1, d], E[2, d] = e0 * f, e1 * f, e2 * f
+    # X = column 1 x column 2 (each component a difference of two Bernstein products); the product tables are
+    # sorted by output coefficient, xp / dp their row pointers
     o1 = col_off[1]
     o2 = col_off[2]
-    for q in range(xo.shape[0]):
-        g = xo[q]
-        a = o1 + xi[q]
-        bb = o2 + xj[q]
-        w = xw[q]
-        X[g, 0] += w * (col[a, 1] * col[bb, 2] - col[a, 2] * col[bb, 1])
-        X[g, 1] += w * (col[a, 2] * col[bb, 0] - col[a, 0] * col[bb, 2])
-        X[g, 2] += w * (col[a, 0] * col[bb, 1] - col[a, 1] * col[bb, 0])
+    for g in range(X.shape[0]):
+        s0 = s1 = s2 = 0.0
+        for q in range(xp[g], xp[g + 1]):
+            a = o1 + xi[q]
+            bb = o2 + xj[q]
+            w = xw[q]
+            a0, a1, a2 = col[a, 0], col[a, 1], col[a, 2]
+            b0, b1, b2 = col[bb, 0], col[bb, 1], col[bb, 2]
+            s0 += w * (a1 * b2 - a2 * b1)
+            s1 += w * (a2 * b0 - a0 * b2)
+            s2 += w * (a0 * b1 - a1 * b0)
+        X[g, 0], X[g, 1], X[g, 2] = s0, s1, s2
     # b = column 0 . X
-    for i in range(nb):
-        b[i] = 0.0
     o0 = col_off[0]
-    for q in range(do.shape[0]):
-        a = o0 + di[q]
-        j = dj[q]
-        b[do[q]] += dw[q] * (col[a, 0] * X[j, 0] + col[a, 1] * X[j, 1] + col[a, 2] * X[j, 2])
+    for i in range(nb):
+        s0 = 0.0
+        for q in range(dp[i], dp[i + 1]):
+            a = o0 + di[q]
+            j = dj[q]
+            t = col[a, 0] * X[j, 0]
+            t += col[a, 1] * X[j, 1]
+            t += col[a, 2] * X[j, 2]
+            s0 += dw[q] * t
+        b[i] = s0
     size = _perm(A)
     # exactly degenerate: every term of det J has a factor that is exactly 0 (a cell in a plane, a line, ...);
     # a size that merely underflows is not that
@@ -164,10 +179,12 @@ def _cell_coefficients(points, conn, m, cptr, cidx_, cval, col_a, col_b, col_w, 
                       or (A[0, 2] > 0 and (A[1, 0] > 0 and A[2, 1] > 0 or A[1, 1] > 0 and A[2, 0] > 0)))
     if degenerate:
         size = 0.0
-    # rounding: the inputs' errors (perm growth), the products' own roundings, underflow
+    # rounding: the inputs' errors (perm growth), the products' own roundings; underflow: c_abs (one subnormal
+    # operation per cell: arithmetic on subnormal numbers is slow, so none is done before)
     c_rel, c_abs = consts[0], consts[1]
-    err = _perm_growth(A, E) + c_rel * U * (size + _perm_growth(A, E)) + c_abs * ETA
-    return err * (1.0 + 1e-6) + ETA, k, size, degenerate  # (the margin covers the rounding of this formula)
+    growth = _perm_growth(A, E)
+    err = (growth + c_rel * U * (size + growth)) * (1.0 + 1e-6)  # (the margin covers this formula's rounding)
+    return err + c_abs * ETA, k, size, degenerate
 
 
 # --- evaluation at a point from the coefficients ----------------------------------------------------------------
@@ -638,7 +655,7 @@ def _polish(b, x0, M, exps, G, h, iterations, out, c, pw, Q, Z, Hr, Lc, v, g, H,
 
 
 @njit(cache=True, nogil=True)
-def run_chunk(points, conn, ids, start, stop, cptr, cidx_, cval, col_a, col_b, col_w, col_off, xo, xi, xj, xw, do,
+def run_chunk(points, conn, ids, start, stop, cptr, cidx_, cval, col_a, col_b, col_w, col_off, xp, xi, xj, xw, dp,
                di, dj, dw, consts, sizes, S, nchildren, cmaps, ctrl, vidx, cidx, M, exps, G, h, fdim, fslot, fexp,
                fcoef, nctrl, nx, rtol, flat_rtol, max_depth, max_iter, polish_iter, cap,
                o_lower, o_value, o_argmin, o_err, o_scale, o_corner, o_depth, o_closed, o_flat, o_k, o_boxes,
@@ -652,10 +669,8 @@ def run_chunk(points, conn, ids, start, stop, cptr, cidx_, cval, col_a, col_b, c
     ncol = col_a.shape[0]
     D = np.empty((n, 3))
     Pc = np.empty((nctrl, 3))
-    mP = np.empty((nctrl, 3))
     eP = np.empty((nctrl, 3))
     col = np.empty((ncol, 3))
-    ecol = np.empty((ncol, 3))
     X = np.empty((nx, 3))
     b = np.empty(nb)
     A = np.empty((3, 3))
@@ -688,8 +703,8 @@ def run_chunk(points, conn, ids, start, stop, cptr, cidx_, cval, col_a, col_b, c
     tri = np.empty(maxn)
     for t in range(start, stop):
         err, k, size, degenerate = _cell_coefficients(points, conn, ids[t], cptr, cidx_, cval, col_a, col_b, col_w,
-                                                      col_off, xo, xi, xj, xw, do, di, dj, dw, consts, D, Pc, mP, eP,
-                                                      col, ecol, X, b, A, E)
+                                                      col_off, xp, xi, xj, xw, dp, di, dj, dw, consts, D, Pc, eP,
+                                                      col, X, b, A, E)
         scale = 0.0
         lo = np.inf
         for i in range(nb):
@@ -772,25 +787,22 @@ def run_chunk(points, conn, ids, start, stop, cptr, cidx_, cval, col_a, col_b, c
 
 
 @njit(cache=True, nogil=True)
-def coefficients_chunk(points, conn, ids, start, stop, cptr, cidx_, cval, col_a, col_b, col_w, col_off, xo, xi, xj,
-                        xw, do, di, dj, dw, consts, nctrl, nx, o_b, o_err, o_k, o_size):
+def coefficients_chunk(points, conn, ids, start, stop, cptr, cidx_, cval, col_a, col_b, col_w, col_off, xp, xi, xj,
+                        xw, dp, di, dj, dw, consts, nctrl, nx, o_b, o_err, o_k, o_size):
     n = conn.shape[1]
     nb = o_b.shape[1]
     ncol = col_a.shape[0]
     D = np.empty((n, 3))
     Pc = np.empty((nctrl, 3))
-    mP = np.empty((nctrl, 3))
     eP = np.empty((nctrl, 3))
     col = np.empty((ncol, 3))
-    ecol = np.empty((ncol, 3))
     X = np.empty((nx, 3))
     b = np.empty(nb)
     A = np.empty((3, 3))
     E = np.empty((3, 3))
     for t in range(start, stop):
         err, k, size, _ = _cell_coefficients(points, conn, ids[t], cptr, cidx_, cval, col_a, col_b, col_w, col_off,
-                                             xo, xi, xj, xw, do, di, dj, dw, consts, D, Pc, mP, eP, col, ecol, X, b, A,
-                                             E)
+                                             xp, xi, xj, xw, dp, di, dj, dw, consts, D, Pc, eP, col, X, b, A, E)
         for i in range(nb):
             o_b[t, i] = b[i]
         o_err[t] = err

@@ -120,17 +120,34 @@ class Tables:
         self.col_w = np.array(cw, dtype=np.float64)
         self.col_off = np.array(off, dtype=np.int64)
         self.nx = int(F["nx"])
-        self.xo, self.xi, self.xj, self.xw = (np.array([e[i] for e in F["cross"]], dtype=dt)
-                                              for i, dt in enumerate((np.int64, np.int64, np.int64, np.float64)))
-        self.do, self.di, self.dj, self.dw = (np.array([e[i] for e in F["dot"]], dtype=dt)
-                                              for i, dt in enumerate((np.int64, np.int64, np.int64, np.float64)))
+        # the product tables, sorted by output coefficient, with row pointers (xp, dp)
+        xo, self.xi, self.xj, self.xw = (np.array([e[i] for e in F["cross"]], dtype=dt)
+                                         for i, dt in enumerate((np.int64, np.int64, np.int64, np.float64)))
+        do, self.di, self.dj, self.dw = (np.array([e[i] for e in F["dot"]], dtype=dt)
+                                         for i, dt in enumerate((np.int64, np.int64, np.int64, np.float64)))
+        self.xp = np.concatenate([[0], np.cumsum(np.bincount(xo, minlength=self.nx))]).astype(np.int64)
+        self.dp = np.concatenate([[0], np.cumsum(np.bincount(do, minlength=sp.nb))]).astype(np.int64)
         # rounding constants (see the module docstring of jacobian): terms per product coefficient
-        kx = int(np.bincount(self.xo).max())
-        kd = int(np.bincount(self.do).max())
+        kx = int(np.bincount(xo).max())
+        kd = int(np.bincount(do).max())
         sizes = [int(z) for z in sp.sizes]
         degs = [p for _, p in sp.factors]
         c_rel = 2.0 * (kx + kd + 16.0)
-        c_abs = 4.0 * (3000.0 * kx * kd + 12.0 * kd + 100.0)
+        # Underflow. Every rounding in the subnormal range errs by at most eta / 2 (additions are exact there).
+        # After scaling, |D| <= 2, so |P| <= 2 cmax (cmax: the largest row sum of |C|), |column coefficient| <=
+        # acap = 2 wmax (4 cmax); the absolute errors: P within (nnzmax + 1) eta of its value from D (scaling
+        # and products), a column coefficient within 2 wmax of that; they grow det J's coefficients by at most
+        # 9 e (acap + e)^2 (the permanent's growth, e that bound); the cross products add kx 4 eta / 2 per X
+        # coefficient, |X| <= 2 acap^2, and the dot products kd (3 acap kx 4 eta / 2 + 4 eta / 2). Four times that.
+        Cabs = np.zeros(self.nctrl)
+        np.add.at(Cabs, np.repeat(np.arange(self.nctrl), np.diff(self.cptr)), np.abs(self.cval))
+        cmax = float(Cabs.max())
+        nnzmax = float(np.diff(self.cptr).max())
+        wmax = float(np.abs(self.col_w).max())
+        acap = 2.0 * wmax * 4.0 * cmax
+        e_col = 2.0 * wmax * (nnzmax + 1.0)
+        c_abs = 4.0 * (9.0 * e_col * (acap + 1.0) ** 2 + kx * 2.0 * 3.0 * acap + kd * (3.0 * acap * kx * 2.0 + 2.0)
+                       + 100.0)
         level_rel = 2.0 * float(sum(z + 2 for z in sizes))
         level_abs = 16.0 * float(sum(sizes))
         eval_rel = 2.0 * (sp.nb + 4.0 * sum(p + 4 for p in degs))
@@ -160,8 +177,8 @@ class Tables:
 
     @property
     def formulation_args(self):
-        return (self.cptr, self.cidx_, self.cval, self.col_a, self.col_b, self.col_w, self.col_off, self.xo, self.xi,
-                self.xj, self.xw, self.do, self.di, self.dj, self.dw, self.consts)
+        return (self.cptr, self.cidx_, self.cval, self.col_a, self.col_b, self.col_w, self.col_off, self.xp, self.xi,
+                self.xj, self.xw, self.dp, self.di, self.dj, self.dw, self.consts)
 
 
 def _composed_child_maps(sp) -> np.ndarray:
@@ -180,7 +197,7 @@ def _composed_child_maps(sp) -> np.ndarray:
 
 _TABLES = {}
 _TABLE_FILE = Path(__file__).with_name("_tables.npz")
-_TABLE_FIELDS = ("cptr", "cidx_", "cval", "col_a", "col_b", "col_w", "col_off", "xo", "xi", "xj", "xw", "do", "di",
+_TABLE_FIELDS = ("cptr", "cidx_", "cval", "col_a", "col_b", "col_w", "col_off", "xp", "xi", "xj", "xw", "dp", "di",
                  "dj", "dw", "consts", "sizes", "S", "nchildren", "cmaps", "ctrl", "vidx", "cidx", "M", "exps", "G",
                  "h", "fdim", "fslot", "fexp", "fcoef")
 _TABLE_SCALARS = ("nb", "n_nodes", "nctrl", "nx")
