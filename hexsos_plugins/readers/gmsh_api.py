@@ -97,20 +97,24 @@ def _extract(gmsh, v4: bool) -> meshio.Mesh:
         raise _ParseError("Gmsh read no nodes")
     order = np.argsort(tags, kind="stable")
     sorted_tags = tags[order]
-    if len(np.unique(sorted_tags)) != len(sorted_tags):
+    if (sorted_tags[1:] == sorted_tags[:-1]).any():
         raise _ParseError("the file repeats node tags")
     points = xyz[order]
     contiguous = sorted_tags[0] == 1 and sorted_tags[-1] == len(sorted_tags)
 
     def index(node_tags):
+        given = node_tags
         node_tags = np.asarray(node_tags, dtype=np.int64)
         if contiguous:
-            idx = node_tags - 1
-            ok = (idx >= 0) & (idx < len(points))
-        else:
-            idx = np.searchsorted(sorted_tags, node_tags)
-            idx[idx >= len(sorted_tags)] = 0
-            ok = sorted_tags[idx] == node_tags
+            idx = node_tags.copy() if node_tags is given else node_tags
+            idx -= 1  # in place: no second array of the size of the connectivity
+            if len(idx) == 0 or (int(idx.min()) >= 0 and int(idx.max()) < len(points)):
+                return idx
+            bad = int(idx[(idx < 0) | (idx >= len(points))][0]) + 1
+            raise _ParseError(f"an element references node tag {bad}, which the file does not define")
+        idx = np.searchsorted(sorted_tags, node_tags)
+        idx[idx >= len(sorted_tags)] = 0
+        ok = sorted_tags[idx] == node_tags
         if not ok.all():
             bad = int(node_tags[~ok][0])
             raise _ParseError(f"an element references node tag {bad}, which the file does not define")

@@ -294,14 +294,18 @@ def _assemble(st, v4: bool) -> meshio.Mesh:
     contiguous = len(tags) > 0 and sorted_tags[0] == 1 and sorted_tags[-1] == len(sorted_tags)
 
     def index(node_tags, what):
+        given = node_tags
         node_tags = np.asarray(node_tags, dtype=np.int64)
         if contiguous:
-            idx = node_tags - 1
+            idx = node_tags.copy() if node_tags is given else node_tags
+            idx -= 1  # in place: no second array of the size of the connectivity
+            if len(idx) == 0 or (int(idx.min()) >= 0 and int(idx.max()) < len(points)):
+                return idx
             ok = (idx >= 0) & (idx < len(points))
-        else:
-            idx = np.searchsorted(sorted_tags, node_tags)
-            idx[idx >= len(sorted_tags)] = 0
-            ok = sorted_tags[idx] == node_tags if len(sorted_tags) else np.zeros(idx.shape, dtype=bool)
+            raise _ParseError(f"{what} references node tag {int(idx[~ok].flat[0]) + 1}, which $Nodes does not define")
+        idx = np.searchsorted(sorted_tags, node_tags)
+        idx[idx >= len(sorted_tags)] = 0
+        ok = sorted_tags[idx] == node_tags if len(sorted_tags) else np.zeros(idx.shape, dtype=bool)
         if not ok.all():
             raise _ParseError(f"{what} references node tag {int(node_tags[~ok].flat[0])}, which $Nodes does not define")
         return idx
