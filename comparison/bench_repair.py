@@ -1,19 +1,23 @@
-"""Benchmark of ``hexsos repair`` against the paper's Table 1 and Gmsh's own untangler.
+"""Benchmark of ``hexsos repair``: the default repair (untangle, quality, certify) beside the paper's Algorithm 2
+and Gmsh's own untangler, on generated meshes and the paper's bunny.
 
-    python -m comparison.bench_repair [--no-gmsh] [--sizes 8 12 20] [--json OUT.json]
+    python -m comparison.bench_repair [--quick] [--no-gmsh] [--json OUT.json] [--samples] [--table1]
 
-Meshes: the paper's *bunny* (``../shared/data/bunny.vtk``, read in place, skipped when absent) and Gmsh ring
-meshes (``examples.gmsh_mesh("ring", n)``: 2n x n x 2n hexes) with 2% of their interior vertices moved by
-Gaussian noise of 0.5 x the median edge length (seeded), which leaves 1-2% of the hexes invalid, as in the
-paper's meshes.
+Meshes (generated, seeded; :mod:`comparison.stress`): graded curved Gmsh solids (``graded_solid``) with a few
+interior vertices moved (ordinary) or 50-90% of the interior vertices moved by up to an edge length (stress
+tests); Gmsh ring meshes with 2% of the interior vertices moved by half an edge (the paper's kind of damage);
+a box with one fold inside a corner-valid hex; issue 14's hex + prism block; and the paper's *bunny*
+(``../shared/data/bunny.vtk``, read in place, skipped when absent).
 
-For each mesh: the paper's Table 1 columns (hexes, invalid before, outer iterations, SOS steps, (R) steps,
-seconds) for our repair, max/mean displacement, the boundary fidelity (Hausdorff distance with pymeshlab),
-and the speed-up over the paper's time for the Table 1 mesh nearest in size. Then, on the same meshes,
-Gmsh 4.15's ``gmsh.model.mesh.optimize("UntangleMeshGeometry", force=True)`` on a discrete model (boundary
-quads as a discrete surface, so that the boundary stays put, and the hexes in a discrete volume bounded by
-it), the result checked by our kernel: who ends certified valid, moving how much, in what time. Finally the
-vertex-update anchor: the paper's V^0 against the current V (our default).
+For each mesh and each repair: hexes, cells not proven valid before / after, the corner scaled Jacobian (min, 1st
+percentile, mean) before / after, the Hausdorff distance of the boundary to the input's (pymeshlab, % of the
+bounding-box diagonal), the largest vertex move (% of the diagonal), seconds. Gmsh 4.15's
+``optimize("UntangleMeshGeometry", force=True)`` runs on a discrete model (boundary quads as a discrete
+surface, kept fixed), on meshes up to ``--gmsh-max-hexes``, its result checked by our kernel.
+
+``--samples`` measures stage 1's sample points (corners only, corners + the Bernstein coefficients of the hexes
+that need them -- the default --, corners + every hex's coefficients) on stress tests. ``--table1`` prints the
+paper's Table 1 columns for ``method="paper"`` against the paper's times.
 """
 
 from __future__ import annotations
@@ -26,11 +30,11 @@ import time
 
 import numpy as np
 
-from hexsos_plugins import check
+from hexsos_plugins import check, repair
 from hexsos_plugins.examples import gmsh_mesh
 from hexsos_plugins.fidelity import boundary_fidelity, boundary_quads
-from hexsos_plugins import repair
-from hexsos_plugins.meshrepair import boundary_vertex_mask, hex_edge_length
+from hexsos_plugins.meshrepair import boundary_vertex_mask, check_cells, hex_edge_length
+from hexsos_plugins.quality import scaled_jacobian, summary
 
 BUNNY = os.path.normpath(os.path.join(os.path.dirname(__file__), "..", "..", "shared", "data", "bunny.vtk"))
 
@@ -109,141 +113,172 @@ def _disp(P, Q):
     return float(n.max()), float(n[n > 0].mean()) if (n > 0).any() else 0.0
 
 
-def _fid(P, Q, H):
-    try:
-        return boundary_fidelity(P, Q, H)
-    except Exception as exc:  # pymeshlab absent: the table says so
-        return {"error": str(exc)}
+def meshes(quick=False):
+    """(name, points, hexes, other cells) of the benchmark."""
+    from comparison.stress import graded_solid, hex_prism_block, single_fold, stress
 
-
-def run(sizes=(8, 12, 20), use_gmsh=True, anchors=True, gmsh_max_hexes=10000):
-    cases = []
+    out = []
     if os.path.exists(BUNNY):
         from hexsos_plugins.io import read
 
         m = read(BUNNY)
-        cases.append(("bunny", m.points, m.hexes))
+        out.append(("bunny", m.points, m.hexes, []))
     else:
-        print(f"(bunny skipped: {BUNNY} absent)")
+        print(f"(bunny skipped: {BUNNY} absent)", file=sys.stderr)
+    sizes = (6, 10) if quick else (8, 12, 20)
     for n in sizes:
+        P, H = graded_solid(n)
+        out.append((f"graded{n} ordinary", stress(P, H, frac=0.03, amp=0.8, seed=n), H, []))
+    for n, frac in (((6, 0.9),) if quick else ((8, 0.5), (8, 0.9), (12, 0.8), (20, 0.8))):
+        P, H = graded_solid(n)
+        out.append((f"graded{n} stress {int(100 * frac)}%", stress(P, H, frac=frac, amp=1.0, seed=n), H, []))
+    for n in ((8,) if quick else (12, 20)):
         P, H = perturbed_ring(n)
-        cases.append((f"ring{n}", P, H))
+        out.append((f"ring{n}", P, H, []))
+    P, H, _ = single_fold(5)
+    out.append(("fold5", P, H, []))
+    P, cells = hex_prism_block(6)
+    out.append(("hex+prism", P, cells[0][1], cells[1:]))
+    return out
 
+
+def _row(name, P0, H, cells, Q, H2, seconds, success=None):
+    diag = float(np.linalg.norm(P0.max(axis=0) - P0.min(axis=0)))
+    r0, r1 = check(P0, H), check(Q, H2)
+    o0, o1 = check_cells(P0, cells), check_cells(Q, cells)
+    bad0 = int((r0.status != 1).sum()) + sum(int((o["status"] != 1).sum()) for o in o0)
+    bad1 = int((r1.status != 1).sum()) + sum(int((o["status"] != 1).sum()) for o in o1)
+    blocks = [("hexahedron", H)] + list(cells)
+    s0 = summary(scaled_jacobian(P0, blocks))
+    s1 = summary(scaled_jacobian(Q, [("hexahedron", H2)] + list(cells)))
+    fid = _fid(P0, Q, H, cells)
+    move = float(np.linalg.norm(Q - P0, axis=1).max())
+    return {"mesh": name, "hexes": int(len(H)), "other_cells": int(sum(len(c) for _, c in cells)),
+            "bad_before": bad0, "bad_after": bad1, "certified": bad1 == 0 if success is None else bool(success),
+            "sj_before": s0, "sj_after": s1, "hausdorff_pct": None if fid is None else 100 * fid / diag,
+            "max_move_pct": 100 * move / diag, "seconds": seconds}
+
+
+def _fid(P, Q, H, cells):
+    try:
+        return boundary_fidelity(P, Q, H, cells=cells)["hausdorff_max"]
+    except Exception:  # noqa: BLE001 - pymeshlab absent: the table says n/a
+        return None
+
+
+def run(quick=False, use_gmsh=True, gmsh_max_hexes=10000, table1=False):
     rows = []
-    for name, P, H in cases:
-        r0 = check(P, H)
-        res = repair(P, H)
-        ref = paper_reference(name, len(H))
-        h = float(np.median(hex_edge_length(P[H])))
-        row = {
-            "mesh": name, "hexes": len(H), "points": len(P), "edge": h,
-            "invalid_before": int((r0.status == 0).sum()),
-            "success": res.success, "invalid_after": res.stats["invalid_after"],
-            "outer_iterations": res.stats["outer_iterations"], "sos_steps": res.stats["sos_steps"],
-            "projection_steps": res.stats["projection_steps"], "sdp_solves": res.stats["sdp_solves"],
-            "seconds": res.stats["seconds"], "max_displacement": res.stats["max_displacement"],
-            "mean_displacement": res.stats["mean_displacement"], "moved_vertices": res.stats["moved_vertices"],
-            "monotone_invalid": res.stats["monotone_invalid"],
-            "invalid_per_iteration": [e["invalid"] + e["undecided"] for e in res.history],
-            "fidelity": _fid(P, res.points, H),
-            "paper_mesh": ref[0], "paper_hexes": ref[1], "paper_seconds": ref[6] * 60.0,
-            "speedup": ref[6] * 60.0 / max(res.stats["seconds"], 1e-9),
-        }
-        if use_gmsh and len(H) <= gmsh_max_hexes:
+    for name, P, H, cells in meshes(quick):
+        print(f"  {name}: {len(H)} hexes ...", file=sys.stderr, flush=True)
+        t0 = time.perf_counter()
+        res = repair(P, H, cells=cells)
+        t = time.perf_counter() - t0
+        entry = {"ours": _row(name, P, H, cells, res.points, H, t, res.success)}
+        entry["ours"]["stage_seconds"] = res.stats["stage_seconds"]
+        t0 = time.perf_counter()
+        rp = repair(P, H, cells=cells, method="paper")
+        entry["paper"] = _row(name, P, H, cells, rp.points, H, time.perf_counter() - t0, rp.success)
+        entry["paper"]["outer_iterations"] = rp.stats["outer_iterations"]
+        entry["paper"]["sos_steps"] = rp.stats["sos_steps"]
+        entry["paper"]["projection_steps"] = rp.stats["projection_steps"]
+        if use_gmsh and len(H) <= gmsh_max_hexes and not cells:
             try:
-                Q, H2, wall, cpu = gmsh_untangle(P, H)
-                rg = check(Q, H2)
-                mx, mn = _disp(P, Q)
-                same_set = (np.sort(H2, axis=1) == np.sort(H, axis=1)).all(axis=1)
-                bmask = boundary_vertex_mask(H, len(P))
-                row["gmsh"] = {"seconds": wall, "cpu_seconds": cpu, "certified": bool((rg.status == 1).all()),
-                               "hexes_renumbered": int((H2 != H).any(axis=1).sum()),
-                               "hexes_other_nodes": int((~same_set).sum()),
-                               "boundary_moved": int((np.linalg.norm(Q - P, axis=1)[bmask] > 0).sum()),
-                               "invalid_after": int((rg.status == 0).sum()),
-                               "undecided_after": int((rg.status == -1).sum()),
-                               "max_displacement": mx, "mean_displacement": mn,
-                               "moved_vertices": int((np.linalg.norm(Q - P, axis=1) > 0).sum()),
-                               "fidelity": _fid(P, Q, H)}
+                Q, H2, wall, _ = gmsh_untangle(P, H)
+                entry["gmsh"] = _row(name, P, H, cells, Q, H2, wall)
             except Exception as exc:  # pragma: no cover - depends on the Gmsh build
-                row["gmsh"] = {"error": f"{type(exc).__name__}: {exc}"}
+                entry["gmsh"] = {"error": f"{type(exc).__name__}: {exc}"}
         elif use_gmsh:
-            row["gmsh"] = {"skipped": f"more than {gmsh_max_hexes} hexes (--gmsh-max-hexes)"}
-        if anchors:
-            ri = repair(P, H, anchor="initial")
-            row["anchor_initial"] = {"success": ri.success, "outer_iterations": ri.stats["outer_iterations"],
-                                     "invalid_after": ri.stats["invalid_after"], "seconds": ri.stats["seconds"],
-                                     "max_displacement": ri.stats["max_displacement"],
-                                     "mean_displacement": ri.stats["mean_displacement"]}
-        rows.append(row)
-        _print_row(row)
-    _print_tables(rows)
+            entry["gmsh"] = {"skipped": "mixed mesh" if cells else f"more than {gmsh_max_hexes} hexes"}
+        rows.append(entry)
+        print(f"  {name}: ours {t:.1f} s, certified {res.success}, min SJ {entry['ours']['sj_after']['min']:.3f}",
+              file=sys.stderr, flush=True)
+    print_table(rows)
+    if table1:
+        _print_table1(rows)
     return rows
 
 
-def _print_row(row):
-    print(f"  done {row['mesh']}: {row['seconds']:.2f} s", file=sys.stderr, flush=True)
+def _fmt(r):
+    if "mesh" not in r:
+        return None
+    h = "n/a" if r["hausdorff_pct"] is None else f"{r['hausdorff_pct']:.2f}%"
+    return (f"{r['bad_before']:,} -> {r['bad_after']:,} | {'yes' if r['certified'] else 'NO'} | "
+            f"{r['sj_before']['min']:.3f} / {r['sj_before']['p1']:.3f} / {r['sj_before']['mean']:.3f} | "
+            f"{r['sj_after']['min']:.3f} / {r['sj_after']['p1']:.3f} / {r['sj_after']['mean']:.3f} | {h} | "
+            f"{r['max_move_pct']:.2f}% | {r['seconds']:.1f}")
 
 
-def _print_tables(rows):
-    print("\nhexsos repair (Algorithms 1 + 2, rho 200, margin 1e-3 h^3 growing, anchor current V)")
-    print(f"{'mesh':8s} {'hexes':>6s} {'invalid':>7s} {'outer':>5s} {'SOS steps':>9s} {'(R) steps':>9s} "
-          f"{'seconds':>8s} {'certified':>9s} {'max disp':>9s} {'mean disp':>9s} {'edge':>7s} {'Hausdorff':>9s} "
-          f"{'rel.':>8s} {'selfX b/a':>9s} {'mono':>5s}")
-    for r in rows:
-        f = r["fidelity"]
-        haus = f"{f['hausdorff_max']:.3g}" if "hausdorff_max" in f else "n/a"
-        rel = f"{100 * f['hausdorff_max_relative']:.3g}%" if "hausdorff_max" in f else "n/a"
-        sx = f"{f['self_intersecting_before']}/{f['self_intersecting_after']}" if "hausdorff_max" in f else "n/a"
-        print(f"{r['mesh']:8s} {r['hexes']:6d} {r['invalid_before']:7d} {r['outer_iterations']:5d} "
-              f"{r['sos_steps']:9d} {r['projection_steps']:9d} {r['seconds']:8.2f} {str(r['success']):>9s} "
-              f"{r['max_displacement']:9.4f} {r['mean_displacement']:9.5f} {r['edge']:7.4f} {haus:>9s} {rel:>8s} "
-              f"{sx:>9s} {str(r['monotone_invalid']):>5s}")
-    print("\nagainst the paper's Table 1 (time of the same mesh, or of the mesh nearest in size)")
-    print(f"{'mesh':8s} {'hexes':>6s} {'paper mesh':>10s} {'p.hexes':>7s} {'p.outer':>7s} {'p.SOSD':>7s} "
-          f"{'p.(R)':>6s} {'p.seconds':>9s} {'ours s':>8s} {'speed-up':>9s}")
-    for r in rows:
-        ref = paper_reference(r["paper_mesh"], r["paper_hexes"])
-        print(f"{r['mesh']:8s} {r['hexes']:6d} {ref[0]:>10s} {ref[1]:7d} {ref[3]:7d} {ref[4]:7d} {ref[5]:6d} "
-              f"{ref[6] * 60:9.1f} {r['seconds']:8.2f} {r['speedup']:8.0f}x")
-    if any("gmsh" in r for r in rows):
-        print("\nGmsh 4.15 optimize('UntangleMeshGeometry', force=True), boundary fixed; result checked by our kernel")
-        print("(checked with the hexes' node lists as Gmsh returns them; 'renum.': hexes whose node list Gmsh "
-              "rewrote, 'bnd mv': boundary vertices moved)")
-        print(f"{'mesh':8s} {'seconds':>8s} {'cpu s':>7s} {'certified':>9s} {'invalid':>7s} {'undec.':>6s} "
-              f"{'max disp':>9s} {'mean disp':>9s} {'moved':>6s} {'bnd mv':>6s} {'renum.':>6s} {'Hausdorff':>9s}")
-        for r in rows:
-            g = r.get("gmsh", {})
-            if "seconds" not in g:
-                print(f"{r['mesh']:8s} {g.get('error') or g.get('skipped', '')}")
+def print_table(rows):
+    print("\n| mesh | hexes | repair | not valid before -> after | certified | SJ before min / p1 / mean | "
+          "SJ after min / p1 / mean | Hausdorff (of diag) | max move (of diag) | seconds |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
+    for e in rows:
+        o = e["ours"]
+        cells = f"{o['hexes']:,}" + (f" + {o['other_cells']:,} prisms" if o["other_cells"] else "")
+        for key, label in (("ours", "hexsos (default)"), ("paper", "paper's Alg. 2"), ("gmsh", "Gmsh untangler")):
+            r = e.get(key)
+            if r is None:
                 continue
-            f = g["fidelity"]
-            haus = f"{f['hausdorff_max']:.3g}" if "hausdorff_max" in f else "n/a"
-            print(f"{r['mesh']:8s} {g['seconds']:8.2f} {g['cpu_seconds']:7.2f} {str(g['certified']):>9s} "
-                  f"{g['invalid_after']:7d} {g['undecided_after']:6d} {g['max_displacement']:9.4f} "
-                  f"{g['mean_displacement']:9.5f} {g['moved_vertices']:6d} {g['boundary_moved']:6d} "
-                  f"{g['hexes_renumbered']:6d} {haus:>9s}")
-    if any("anchor_initial" in r for r in rows):
-        print("\nvertex update anchored at V^0 (the paper's formula) instead of the current V, max_iter 100")
-        print(f"{'mesh':8s} {'certified':>9s} {'outer':>5s} {'invalid':>7s} {'seconds':>8s} {'max disp':>9s}")
-        for r in rows:
-            a = r["anchor_initial"]
-            print(f"{r['mesh']:8s} {str(a['success']):>9s} {a['outer_iterations']:5d} {a['invalid_after']:7d} "
-                  f"{a['seconds']:8.2f} {a['max_displacement']:9.4f}")
+            f = _fmt(r)
+            if f is None:
+                print(f"| {o['mesh']} | {cells} | {label} | {r.get('error') or r.get('skipped')} | | | | | | |")
+            else:
+                print(f"| {o['mesh']} | {cells} | {label} | {f} |")
+
+
+def _print_table1(rows):
+    print("\nthe paper's Algorithm 2 (method='paper') in Table 1's columns, against the paper's mesh nearest in size")
+    print(f"{'mesh':22s} {'hexes':>6s} {'outer':>5s} {'SOS steps':>9s} {'(R) steps':>9s} {'seconds':>8s} "
+          f"{'paper mesh':>10s} {'p.seconds':>9s}")
+    for e in rows:
+        p = e["paper"]
+        ref = paper_reference(p["mesh"], p["hexes"])
+        print(f"{p['mesh']:22s} {p['hexes']:6d} {p['outer_iterations']:5d} {p['sos_steps']:9d} "
+              f"{p['projection_steps']:9d} {p['seconds']:8.2f} {ref[0]:>10s} {ref[6] * 60:9.1f}")
+
+
+def samples(quick=False):
+    """Stage 1's sample points, measured on stress tests: untangled?, stage-1 iterations and seconds."""
+    from comparison.stress import graded_solid, stress, single_fold
+    from hexsos_plugins import optimize as opt
+    from hexsos_plugins.meshrepair import _cell_size
+
+    cases = []
+    for n, frac in (((6, 0.9),) if quick else ((8, 0.9), (12, 0.8))):
+        P, H = graded_solid(n)
+        cases.append((f"graded{n} stress {int(100 * frac)}%", stress(P, H, frac=frac, amp=1.0, seed=n), H))
+    P, H, _ = single_fold(5)
+    cases.append(("fold5", P, H))
+    print("\n| mesh | stage-1 samples | untangled (all corners and coefficients > 0) | iterations | seconds |")
+    print("|---|---|---|---|---|")
+    for name, P, H in cases:
+        for mode, label in (("none", "corners only"), ("flagged", "corners + 27 coefficients where needed"),
+                            ("all", "corners + 27 coefficients of every hex")):
+            prob = opt.Problem(P, [("hexahedron", H)], [_cell_size(P, "hexahedron", H)], np.ones(len(P), bool))
+            t0 = time.perf_counter()
+            info = opt.untangle(prob, bernstein=mode)
+            t = time.perf_counter() - t0
+            full = opt.Problem(prob.V, [("hexahedron", H)], [_cell_size(P, "hexahedron", H)], np.ones(len(P), bool))
+            ok = full.feasible_valid(prob.V)
+            cert = bool((check(prob.V, H).status == 1).all())
+            print(f"| {name} | {label} | {'yes' if ok else 'no'} (kernel: {'all valid' if cert else 'not all valid'})"
+                  f" | {info['iterations']} | {t:.2f} |")
 
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--sizes", type=int, nargs="*", default=[8, 12, 20],
-                    help="ring meshes: n elements per edge (2n x n x 2n hexes); default 8 12 20")
+    ap.add_argument("--quick", action="store_true", help="smaller meshes (a minute or two)")
     ap.add_argument("--no-gmsh", action="store_true", help="skip Gmsh's untangler")
     ap.add_argument("--gmsh-max-hexes", type=int, default=10000,
                     help="run Gmsh's untangler only on meshes up to this many hexes (default 10000: it is slow)")
-    ap.add_argument("--no-anchors", action="store_true", help="skip the V^0-anchored comparison")
+    ap.add_argument("--samples", action="store_true", help="measure stage 1's sample points instead")
+    ap.add_argument("--table1", action="store_true", help="also print Table 1's columns for method='paper'")
     ap.add_argument("--json", metavar="OUT", help="also write the rows as JSON")
     args = ap.parse_args(argv)
-    rows = run(args.sizes, use_gmsh=not args.no_gmsh, anchors=not args.no_anchors,
-               gmsh_max_hexes=args.gmsh_max_hexes)
+    if args.samples:
+        samples(args.quick)
+        return 0
+    rows = run(args.quick, use_gmsh=not args.no_gmsh, gmsh_max_hexes=args.gmsh_max_hexes, table1=args.table1)
     if args.json:
         with open(args.json, "w") as f:
             json.dump(rows, f, indent=1, default=float)

@@ -30,10 +30,13 @@ Stage 2, quality
     target, when the minimum stops rising, or at the budget. (beta = 0.1 held the bunny at min SJ 0.15, 0.01 and
     0.001 reached 0.51.)
 
-Boundary (both stages): with ``boundary="slide"`` every boundary vertex pays ``w |Q (x - r)|^2 / s^2`` with
-Q the projector onto its input normal (surface vertices) or onto the plane normal to its feature edge (feature
-vertices), r its reference on the input surface; after each outer step the boundary vertices are projected
-onto the input surface (:mod:`hexsos_plugins.boundary`) by steps that keep the mesh feasible.
+Boundary, ``boundary="slide"``: every boundary vertex pays ``w |Q (x - r)|^2 / s^2`` (w = 100, Q the projector
+onto its input normal, or onto the plane normal to its feature edge, r its reference on the input surface), so it
+slides in its tangent plane or along its feature, and a tangled boundary can still unfold. Measured on the bunny:
+moving boundary vertices *only* in their tangent planes (projected gradients) did not untangle it in 6 minutes,
+and in stage 2 alone held its min SJ at 0.006 where the penalty reached 0.23. After stage 1 and each round of
+stage 2 the boundary vertices are projected onto the input surface (:mod:`hexsos_plugins.boundary`), each as far
+as it can go with every cell still feasible.
 
 Everything is vectorized numpy: the linear maps are BLAS products, the per-sample nonlinear parts are
 elementwise array expressions in IEEE double precision (no fast-math), gradients analytic (tested against
@@ -53,9 +56,9 @@ __all__ = ["Problem", "untangle", "improve", "hex_bernstein_samples", "bernstein
            "bernstein_coefficients", "bernstein_vertex_gradient"]
 
 THETA = 1.0 / 128.0  # weight of the volume term in stage 1 (Garanzha et al.)
-THETA_B = 1.0  # weight of the Bernstein barrier in stage 1
+BOUNDARY_WEIGHT = 100.0  # w of stage 1's boundary penalty
+THETA_B = 3.0  # weight of the Bernstein barrier in stage 1 (bunny, sliding, measured: 1 -> 12 outer steps for one fold, min SJ 0.02 after stage 2; 30 -> 2 steps, 0.01-0.06; 3 -> 0.30)
 BETA = 0.01  # weight of the Bernstein log-barrier in stage 2 (measured on the bunny: 0.1 holds the min SJ at 0.15)
-BOUNDARY_WEIGHT = 100.0  # w of the boundary penalty
 T_STEP = 0.9  # stage 2: t moves this fraction of the way to the current minimum after each round
 
 # --- small dense helpers ----------------------------------------------------------------------------------
@@ -209,8 +212,15 @@ class Problem:
 
     def bernstein(self, V):
         """Per hex block: the 27 coefficients in units of s^3 (M, 27); None for other blocks."""
-        return [bernstein_coefficients(V[b["conn"]]) / b["s"][:, None] ** 3 if b["hex"] else None
-                for b in self.blocks]
+        out = []
+        for b in self.blocks:
+            if not b["hex"]:
+                out.append(None)
+            elif self.compiled:
+                out.append(_nb.hex_bernstein(V, b["conn"]) / b["s"][:, None] ** 3)
+            else:
+                out.append(bernstein_coefficients(V[b["conn"]]) / b["s"][:, None] ** 3)
+        return out
 
     def sj_samples(self, V):
         out = []
@@ -242,15 +252,23 @@ class Problem:
         return out
 
     # --- boundary penalty
-    def _boundary(self, V, g):
+    def _boundary(self, V, g, penalty):
+        """Sliding boundary vertices. ``penalty`` (used by both stages): each pays ``w |Q (x - r)|^2 / s^2`` (Q
+        the projector onto its input normal, or onto the plane normal to its feature edge; r its reference on the
+        surface). Otherwise they would move exactly in their input tangent plane (or along their feature
+        tangent): their gradient projected there (measured worse, see the module docstring)."""
         sl = self.slide
         if sl is None or sl.idx.size == 0:
             return 0.0
-        d = V[sl.idx] - sl.ref
-        Qd = np.einsum("kab,kb->ka", sl.Q, d)
-        w = BOUNDARY_WEIGHT / sl.s2
-        g[sl.idx] += 2.0 * w[:, None] * Qd
-        return float((w * (Qd * d).sum(axis=1)).sum())
+        if penalty:
+            d = V[sl.idx] - sl.ref
+            Qd = np.einsum("kab,kb->ka", sl.Q, d)
+            w = BOUNDARY_WEIGHT / sl.s2
+            g[sl.idx] += 2.0 * w[:, None] * Qd
+            return float((w * (Qd * d).sum(axis=1)).sum())
+        gi = g[sl.idx]
+        g[sl.idx] = gi - np.einsum("kab,kb->ka", sl.Q, gi)
+        return 0.0
 
     # --- stage 1: the regularized untangling energy
     def untangle_energy(self, x, eps, flagged):
@@ -287,7 +305,7 @@ class Problem:
                 db = THETA_B * (2 * bh / chi - (bh * bh + 1) * dchi / chi ** 2) / s3
                 df = db @ _T
                 self._scatter(g, conn, _backward(df * cof3(Jb), Gm))
-        E_total += self._boundary(V, g)
+        E_total += self._boundary(V, g, True)
         self.evaluations += 1
         self._last_dmin = dmin
         return E_total, g[self.free].ravel()
@@ -307,7 +325,7 @@ class Problem:
                                               g, True)
                 total += e
                 dmin = min(dmin, d)
-        total += self._boundary(V, g)
+        total += self._boundary(V, g, True)
         self.evaluations += 1
         self._last_dmin = dmin
         return total, g[self.free].ravel()
@@ -326,7 +344,7 @@ class Problem:
                 total += e
                 smin = min(smin, m)
             self._last_min_sj = smin
-            total += self._boundary(V, g)
+            total += self._boundary(V, g, True)
             return total, (g[self.free].ravel() if grad else None)
         V = self.full(x)
         g = np.zeros((self.N, 3)) if grad else None
@@ -362,9 +380,9 @@ class Problem:
                     gX += _backward(df * cof3(Jb), Gm)
                 self._scatter(g, b["conn"], gX)
         if grad:
-            total += self._boundary(V, g)
+            total += self._boundary(V, g, True)
             return total, g[self.free].ravel()
-        return total + self._boundary(V, np.zeros((self.N, 3))), None
+        return total, None
 
     def min_sj(self, V):
         m = np.inf
@@ -441,9 +459,13 @@ def _lbfgs(fun, x, *, max_iter, memory=10, deadline=None, ftol=1e-9, stop=None):
 # --- the stages -------------------------------------------------------------------------------------------
 
 
-def untangle(prob: Problem, *, max_outer=60, max_iter=300, deadline=None, on_step=None):
+def untangle(prob: Problem, *, max_outer=60, max_iter=300, deadline=None, on_step=None, bernstein="flagged"):
     """Stage 1 on ``prob`` (its ``V`` is updated). Returns a dict: ``success`` (every corner determinant and
-    hex coefficient positive), ``outer``, ``iterations``, ``evaluations``."""
+    hex coefficient positive), ``outer``, ``iterations``, ``evaluations``.
+
+    ``bernstein``: which hexes add the barrier on their 27 Bernstein coefficients: ``"flagged"`` (default: those
+    with a coefficient <= 0, at the start or after any outer step), ``"all"``, or ``"none"`` (corners only; the
+    stage then cannot see folds inside corner-valid hexes). Measured in ``comparison.bench_repair --samples``."""
     from scipy.optimize import minimize
 
     info = {"success": False, "outer": 0, "iterations": 0}
@@ -452,7 +474,12 @@ def untangle(prob: Problem, *, max_outer=60, max_iter=300, deadline=None, on_ste
         return info
     x = prob.x0()
     bad = prob.bad_cells(prob.V)
-    flagged = [bb.copy() for bb in bad]
+    if bernstein == "all":
+        flagged = [np.ones_like(bb) for bb in bad]
+    elif bernstein == "none":
+        flagged = [np.zeros_like(bb) for bb in bad]
+    else:
+        flagged = [bb.copy() for bb in bad]
     dets = prob.corner_dets(prob.V)
     bern = prob.bernstein(prob.V)
     dmin = min(min(float(d.min()) for d in dets if d.size),
@@ -473,7 +500,7 @@ def untangle(prob: Problem, *, max_outer=60, max_iter=300, deadline=None, on_ste
             # stop the inner solve once the current point is untangled (checked on the coordinates)
             if prob._last_dmin > 0:
                 V = prob.full(intermediate_result.x)
-                if prob.feasible_valid(V):
+                if (prob.feasible_valid(V) if bernstein != "none" else True):
                     state["done"] = True
                     raise StopIteration
 
@@ -486,14 +513,16 @@ def untangle(prob: Problem, *, max_outer=60, max_iter=300, deadline=None, on_ste
         prob.V = V
         e_new = float(res.fun)
         bad = prob.bad_cells(V)
-        for f, b in zip(flagged, bad):
-            f |= b
+        if bernstein != "none":
+            for f, b in zip(flagged, bad):
+                f |= b
         dets = prob.corner_dets(V)
         bern = prob.bernstein(V)
         dmin = min(min(float(d.min()) for d in dets if d.size),
                    min((float(b[f].min()) for b, f in zip(bern, flagged) if b is not None and f.any()),
                        default=np.inf))
-        ok = prob.feasible_valid(V)
+        ok = prob.feasible_valid(V) if bernstein != "none" else all(
+            d.min() > 0 for d in prob.corner_dets(V) if d.size)
         if on_step is not None:
             on_step("untangle", V)
         if ok:

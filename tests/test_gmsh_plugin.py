@@ -21,6 +21,8 @@ import pytest
 gmsh = pytest.importorskip("gmsh")
 
 from hexsos_plugins import NoHexahedraError, check  # noqa: E402
+from hexsos_plugins.elements import ELEMENTS  # noqa: E402
+from hexsos_plugins.errors import InvalidInputError  # noqa: E402
 from hexsos_plugins.examples import demo_mesh, gmsh_mesh, hexes_to_mesh, inside_invalid_hex  # noqa: E402
 
 import gmsh_plugin  # noqa: E402
@@ -346,7 +348,17 @@ def test_panel_parameters_reach_the_kernel(session):
     gmsh.onelab.setNumber(panel.P_PIN, [1])
     gmsh.onelab.setNumber(panel.P_MAX_ITER, [7])
     assert panel.read_parameters() == {"method": "sos", "relaxation": "paper", "rho": 50.0, "margin": 2e-3,
-                                       "pin_boundary": True, "max_iter": 7}
+                                       "pin_boundary": True, "max_iter": 7, "repair_method": "optimize",
+                                       "boundary": "slide", "min_sj": None}
+    gmsh.onelab.setString(panel.P_REPAIR_METHOD, ["paper"])
+    gmsh.onelab.setString(panel.P_BOUNDARY, ["free"])
+    gmsh.onelab.setString(panel.P_MIN_SJ, ["0.3"])
+    p = panel.read_parameters()
+    assert (p["repair_method"], p["boundary"], p["min_sj"]) == ("paper", "free", 0.3)
+    gmsh.onelab.setString(panel.P_MIN_SJ, ["2"])
+    with pytest.raises(InvalidInputError, match="scaled Jacobian"):
+        panel.read_parameters()
+    gmsh.onelab.setString(panel.P_MIN_SJ, ["auto"])
     _press(panel.ACTION_CHECK)
     res = panel.last_result()
     assert (res.method_requested, res.relaxation) == ("sos", "paper") and res.sos_solves >= 2
@@ -411,12 +423,20 @@ def test_panel_repair_button_moves_the_nodes_in_the_model(session):
     _press(panel.ACTION_CHECK)
     assert _results()["invalid"] == 3
     before = {int(t): c for t, c in zip(*_nodes())}
+    # the lone hex has every vertex at a feature corner: sliding pins them all, and the repair says it failed
+    _press(panel.ACTION_REPAIR)
+    res = panel.last_result()
+    assert not res.success and _results()["message"].startswith("repair did not succeed")
+    assert "pinned" in res.message
+    _load_scrambled(P, H, seed=4)
+    gmsh.onelab.setString(panel.P_BOUNDARY, ["free"])
     _press(panel.ACTION_REPAIR)
     res = panel.last_result()
     assert res.success, res.message
     r = _results()
     assert r["invalid"] == 0 and r["undecided"] == 0 and r["min_det"] > 0
-    assert r["message"].startswith("repair succeeded")
+    assert r["message"].startswith("repair succeeded") and "min scaled Jacobian" in r["message"]
+    assert gmsh.onelab.getNumber(panel.R_MIN_SJ)[0] == pytest.approx(res.stats["min_sj_after"]) > 0
     # the nodes moved in the Gmsh model, to the repaired coordinates, under their own tags
     after = {int(t): c for t, c in zip(*_nodes())}
     hx = res.extra["gmsh"]
@@ -437,18 +457,51 @@ def test_panel_repair_button_moves_the_nodes_in_the_model(session):
     np.testing.assert_allclose(disp, res.points - hx.points, atol=1e-12)
 
 
-def test_repair_model_keeps_nodes_shared_with_tetrahedra(session):
+def test_repair_model_pins_or_protects_nodes_shared_with_tetrahedra(session):
     P, H = hexes_to_mesh(inside_invalid_hex())
     ntags, _ = gm.add_hex_mesh(P, H)
     vol = gmsh.model.addDiscreteEntity(3)
     gmsh.model.mesh.addNodes(3, vol, [100], [0.0, 0.0, -1.0])
     shared = [int(ntags[0]), int(ntags[1]), int(ntags[2])]
     gmsh.model.mesh.addElementsByType(vol, 4, [], shared + [100])
-    res = gmsh_plugin.repair_model()
+    tet_ok = lambda: ELEMENTS["tetra"].det(  # noqa: E731
+        np.array([gmsh.model.mesh.getNode(t)[0] for t in shared + [100]])[None], ELEMENTS["tetra"].reference_nodes
+    ).min() > 0
+    assert tet_ok()
+    # the paper's repair pins them
+    res = gmsh_plugin.repair_model(repair_method="paper")
     assert res.success and res.extra["model_check"].counts()["invalid"] == 0
     for t in shared:
         np.testing.assert_array_equal(gmsh.model.mesh.getNode(t)[0], P[t - 1])
     assert not set(shared) & {int(t) for t in res.extra["moved_node_tags"]}
+    # the default repair moves them with the tet in its energies, which stays valid; the result counts it
+    for t in shared:
+        gmsh.model.mesh.setNode(t, P[t - 1], [])
+    res = gmsh_plugin.repair_model(boundary="free")
+    assert res.success and res.stats["other_cells"] == 1 and res.stats["other_cells_invalid_after"] == 0
+    assert res.extra["model_check"].counts()["invalid"] == 0 and tet_ok()
+
+
+def test_repair_model_never_reports_success_with_inverted_prisms(session):
+    from comparison.stress import hex_prism_block
+
+    P, cells = hex_prism_block(4, amp=0.2, seed=1)
+    H, W = cells[0][1], cells[1][1]
+    ntags = np.arange(1, len(P) + 1, dtype=np.uint64)
+    gmsh.model.add("mix")
+    vol = gmsh.model.addDiscreteEntity(3)
+    gmsh.model.mesh.addNodes(3, vol, ntags, P.ravel())
+    gmsh.model.mesh.addElementsByType(vol, 5, [], ntags[H].ravel())
+    gmsh.model.mesh.addElementsByType(vol, 6, [], ntags[W].ravel())  # Gmsh's prism order is VTK's
+    inverted = lambda Q: ELEMENTS["wedge"].det(Q[W], ELEMENTS["wedge"].reference_nodes).min(axis=1) <= 0  # noqa
+    assert inverted(P).sum() > 5
+    res = gmsh_plugin.repair_model(repair_method="paper", max_iter=10)
+    Q = np.array([gmsh.model.mesh.getNode(int(t))[0] for t in ntags])
+    assert not res.success and "wedge" in res.message and inverted(Q).sum() >= 1
+    assert res.stats["other_cells_invalid_after"] >= inverted(Q).sum()
+    res = gmsh_plugin.repair_model()
+    Q = np.array([gmsh.model.mesh.getNode(int(t))[0] for t in ntags])
+    assert res.success and not inverted(Q).any() and res.extra["model_check"].counts()["invalid"] == 0
 
 
 def _nodes():

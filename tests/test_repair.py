@@ -389,7 +389,7 @@ def test_interrupted_repair_leaves_no_output_and_saves_a_checkpoint(tmp_path, si
     before = src.read_bytes()
     out = tmp_path / "out.vtu"
     proc = subprocess.Popen([sys.executable, "-m", "hexsos_plugins", "repair", str(src), "-o", str(out),
-                             "--max-iter", "1000000", "--no-fidelity"], stdout=subprocess.PIPE,
+                             "--method", "paper", "--max-iter", "1000000", "--no-fidelity"], stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True)
     time.sleep(4.0)  # well into the iterations (each takes milliseconds)
     assert proc.poll() is None
