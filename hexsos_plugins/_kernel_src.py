@@ -214,17 +214,25 @@ def _eval_bernstein(b, x, fdim, fslot, fexp, fcoef, sizes, W, xs):
         for j in range(fdim[k]):
             xs[j] = x[fslot[k] + j]
         _factor_weights(fdim[k], xs, fexp[k], fcoef[k], sizes[k], W[k])
-    nb = b.shape[0]
     s = 0.0
-    for j in range(nb):
-        w = 1.0
-        r = j
-        post = nb
-        for k in range(nf):
-            post //= sizes[k]
-            w *= W[k, r // post]
-            r = r % post
-        s += w * b[j]
+    if nf == 1:
+        for i in range(sizes[0]):
+            s += W[0, i] * b[i]
+    elif nf == 2:
+        n1 = sizes[1]
+        for i in range(sizes[0]):
+            w0 = W[0, i]
+            for j in range(n1):
+                s += w0 * W[1, j] * b[i * n1 + j]
+    else:
+        n1, n2 = sizes[1], sizes[2]
+        for i in range(sizes[0]):
+            w0 = W[0, i]
+            for j in range(n1):
+                w01 = w0 * W[1, j]
+                base = (i * n1 + j) * n2
+                for k in range(n2):
+                    s += w01 * W[2, k] * b[base + k]
     return s
 
 
@@ -301,8 +309,232 @@ def _compose(parent, child, out):
 
 
 @njit(cache=True, nogil=True)
+def _line_weights(p, t, out):
+    """Bernstein basis of degree p at t in [0, 1] into out[:p + 1] (non-negative)."""
+    s = 1.0 - t
+    for i in range(p + 1):
+        w = 1.0
+        for _ in range(i):
+            w *= t
+        for _ in range(p - i):
+            w *= s
+        c = 1.0
+        for j in range(1, i + 1):
+            c = c * (p - i + j) / j
+        out[i] = c * w
+
+
+@njit(cache=True, nogil=True)
+def _min_quadratic(g_lo, g_hi, lam, dl, dh):
+    """min over d in [dl, dh] (dl <= 0 <= dh) of min(g_lo d, g_hi d) + lam d^2 / 2 (g_lo <= g_hi)."""
+    m = 0.0
+    for side in range(2):
+        g = g_lo if side == 0 else g_hi  # d >= 0 takes g_lo, d <= 0 takes g_hi
+        end = dh if side == 0 else dl
+        v = g * end + 0.5 * lam * end * end
+        if v < m:
+            m = v
+        if lam > 0.0:
+            d = -g / lam
+            if (side == 0 and 0.0 < d < dh) or (side == 1 and dl < d < 0.0):
+                v = g * d + 0.5 * lam * d * d
+                if v < m:
+                    m = v
+    return m
+
+
+@njit(cache=True, nogil=True)
+def _taylor_bound(c, e, t, sizes, W, Wd, F3, F33, I3):
+    """A rigorous lower bound of a polynomial over a box from its tensor Bernstein coefficients c (line
+    factors; sizes = degrees + 1, up to 3 axes), each within e of exact, by its second-order expansion at the
+    local point t (in [0, 1]^3): f(x) = f(t) + g . d + d^T H(xi) d / 2 with d = x - t and xi in the box, where
+    f(t) and g = grad f(t) are enclosed by evaluating the (derivative) coefficients with non-negative weights,
+    and every entry of H over the box by the extremes of its Bernstein coefficients (second differences);
+    d^T H d >= sum_a (H_aa,lo - sum_b!=a max|H_ab|) d_a^2, so the bound is f(t) plus three one-dimensional
+    minimizations. Near a minimizer (g ~ 0, H positive) it is within the rounding of f's minimum on a box
+    where plain Bernstein bounds still need many halvings. Scratch: F3 (4, 3), F33 (4, 3, 3), I3 (2, 3) int."""
+    n0, n1, n2 = sizes[0], sizes[1] if sizes.shape[0] > 1 else 1, sizes[2] if sizes.shape[0] > 2 else 1
+    p = (n0 - 1, n1 - 1, n2 - 1)
+    cmax = 0.0
+    for i in range(c.shape[0]):
+        if abs(c[i]) > cmax:
+            cmax = abs(c[i])
+    # value at t
+    for a in range(3):
+        _line_weights(p[a], t[a], W[a])
+    v = 0.0
+    for i in range(n0):
+        for j in range(n1):
+            for k in range(n2):
+                v += W[0, i] * W[1, j] * W[2, k] * c[(i * n1 + j) * n2 + k]
+    total = abs(v)
+    v_lo = v - e * (1.0 + 64.0 * U) - 4.0 * (c.shape[0] + 12.0) * U * cmax
+    # gradient at t: derivative coefficients p_a (c[.. i+1 ..] - c[.. i ..]) evaluated with degree p_a - 1 weights
+    g = F3[0]
+    eg = F3[1]
+    for a in range(3):
+        g[a] = 0.0
+        eg[a] = 0.0
+    for a in range(3):
+        if p[a] == 0:
+            continue
+        _line_weights(p[a] - 1, t[a], Wd)
+        s = 0.0
+        dmax = 0.0
+        for i in range(n0):
+            for j in range(n1):
+                for k in range(n2):
+                    ia = i if a == 0 else (j if a == 1 else k)
+                    if ia == p[a]:
+                        continue
+                    base = (i * n1 + j) * n2 + k
+                    step = n1 * n2 if a == 0 else (n2 if a == 1 else 1)
+                    dlt = p[a] * (c[base + step] - c[base])
+                    if abs(dlt) > dmax:
+                        dmax = abs(dlt)
+                    if a == 0:
+                        w = Wd[i] * W[1, j] * W[2, k]
+                    elif a == 1:
+                        w = W[0, i] * Wd[j] * W[2, k]
+                    else:
+                        w = W[0, i] * W[1, j] * Wd[k]
+                    s += w * dlt
+        g[a] = s
+        eg[a] = 2.0 * p[a] * e + 4.0 * (c.shape[0] + 12.0) * U * dmax
+        total += abs(s)
+    # Hessian enclosures over the box: every entry in [Hl, Hh], from the extremes of its Bernstein coefficients
+    # (second differences), widened by their rounding
+    Hl = F33[0]
+    Hh = F33[1]
+    for a in range(3):
+        for b2 in range(3):
+            Hl[a, b2] = 0.0
+            Hh[a, b2] = 0.0
+    for a in range(3):
+        for b2 in range(a, 3):
+            if (a == b2 and p[a] < 2) or (a != b2 and (p[a] == 0 or p[b2] == 0)):
+                continue
+            sa = n1 * n2 if a == 0 else (n2 if a == 1 else 1)
+            sb = n1 * n2 if b2 == 0 else (n2 if b2 == 1 else 1)
+            fac = p[a] * (p[a] - 1) if a == b2 else p[a] * p[b2]
+            lo = np.inf
+            hi = -np.inf
+            amax = 0.0
+            for i in range(n0):
+                for j in range(n1):
+                    for k in range(n2):
+                        ia = i if a == 0 else (j if a == 1 else k)
+                        ib = i if b2 == 0 else (j if b2 == 1 else k)
+                        if a == b2:
+                            if ia > p[a] - 2:
+                                continue
+                        elif ia == p[a] or ib == p[b2]:
+                            continue
+                        base = (i * n1 + j) * n2 + k
+                        if a == b2:
+                            h = fac * ((c[base + 2 * sa] - c[base + sa]) - (c[base + sa] - c[base]))
+                        else:
+                            h = fac * ((c[base + sa + sb] - c[base + sa]) - (c[base + sb] - c[base]))
+                        if h < lo:
+                            lo = h
+                        if h > hi:
+                            hi = h
+                        if abs(h) > amax:
+                            amax = abs(h)
+            # inputs within e; the differences round relative to first differences, each at most 2 cmax
+            eh = 4.0 * fac * e + 16.0 * fac * U * cmax + 8.0 * U * amax
+            Hl[a, b2] = Hl[b2, a] = lo - eh
+            Hh[a, b2] = Hh[b2, a] = hi + eh
+    # axes where t is on a face and the gradient points into the element ("active"): their cross terms are
+    # folded into their linear term (H_ab d_a d_b >= -max|H_ab| R_b |d_a|, R_b the farthest d_b); the free axes
+    # keep theirs: d^T H d >= d^T Hm d - |d|^T Hr |d| >= d^T (Hm - diag(rho)) d (Hm, Hr: midpoints and radii,
+    # rho the radii's row sums), and beta I below that matrix when a shifted Cholesky succeeds (verified: the
+    # shift covers the factorization's rounding)
+    active = I3[0]
+    for a in range(3):
+        active[a] = 0
+        if p[a] > 0 and ((t[a] == 0.0 and g[a] - eg[a] > 0.0) or (t[a] == 1.0 and g[a] + eg[a] < 0.0)):
+            active[a] = 1
+    lin = F3[2]
+    for a in range(3):
+        lin[a] = 0.0
+    for a in range(3):
+        for b2 in range(3):
+            if b2 != a and active[a] == 1 and p[b2] > 0 and not (active[b2] == 1 and b2 < a):
+                lin[a] += max(abs(Hl[a, b2]), abs(Hh[a, b2])) * max(t[b2], 1.0 - t[b2])
+    free = I3[1]
+    nfree = 0
+    for a in range(3):
+        if p[a] > 0 and active[a] == 0:
+            free[nfree] = a
+            nfree += 1
+    B = F33[2]
+    bsum = 0.0
+    for i in range(nfree):
+        a = free[i]
+        rho = 0.0
+        for j in range(nfree):
+            rho += 0.5 * (Hh[a, free[j]] - Hl[a, free[j]])
+        for j in range(nfree):
+            B[i, j] = 0.5 * (Hh[a, free[j]] + Hl[a, free[j]])
+            bsum += abs(B[i, j])
+        B[i, i] -= rho * (1.0 + 4.0 * U)
+    beta = -np.inf
+    if nfree > 0:
+        dmin = np.inf
+        for i in range(nfree):
+            dmin = min(dmin, B[i, i])
+        shift = 32.0 * U * bsum + 1e-300
+        for trial in range(6):  # the largest of dmin/2, dmin/8, ..., 0 that a verified Cholesky accepts
+            cand = dmin * 0.5 ** (2 * trial + 1) if trial < 5 else 0.0
+            if cand < 0.0:
+                break
+            ok = True
+            L = F33[3]
+            for i in range(nfree):
+                for j in range(i + 1):
+                    sacc = B[i, j] - (cand + shift if i == j else 0.0)
+                    for k in range(j):
+                        sacc -= L[i, k] * L[j, k]
+                    if i == j:
+                        if sacc <= 0.0:
+                            ok = False
+                            break
+                        L[i, i] = math.sqrt(sacc)
+                    else:
+                        L[i, j] = sacc / L[j, j]
+                if not ok:
+                    break
+            if ok:
+                beta = cand
+                break
+        if beta == -np.inf:  # not positive definite: Gershgorin on the interval matrix
+            beta = np.inf
+            for i in range(nfree):
+                a = free[i]
+                r = Hl[a, a]
+                for j in range(nfree):
+                    if j != i:
+                        r -= max(abs(Hl[a, free[j]]), abs(Hh[a, free[j]]))
+                beta = min(beta, r)
+    bound = v_lo
+    for a in range(3):
+        if p[a] == 0:
+            continue
+        if active[a] == 1 and t[a] == 0.0:
+            m = _min_quadratic(g[a] - eg[a] - lin[a], g[a] + eg[a] + lin[a], Hl[a, a], 0.0, 1.0)
+        elif active[a] == 1:
+            m = _min_quadratic(g[a] - eg[a] - lin[a], g[a] + eg[a] + lin[a], Hl[a, a], -1.0, 0.0)
+        else:
+            m = _min_quadratic(g[a] - eg[a], g[a] + eg[a], beta, -t[a], 1.0 - t[a])
+        bound += m
+        total += abs(m)
+    return bound - 16.0 * U * total
+
+
+@njit(cache=True, nogil=True)
 def _refine(b, err, level_err, tol, upper, argmin, max_depth, max_iter, S, nchildren, sizes, fdim, cmaps, ctrl,
-            vidx, bc, bmap, blow, bdepth, kids, work, pmap, cmap, tri):
+            vidx, bc, bmap, blow, bdepth, kids, work, pmap, cmap, tri, taylor, TW, TWd, tloc, TF3, TF33, TI3):
     """Best-first branch-and-bound of one cell from its root coefficients b.
 
     Returns (lower, upper, depth, closed, boxes); ``argmin`` (3,) receives the box vertex where ``upper`` (the
@@ -337,6 +569,28 @@ def _refine(b, err, level_err, tol, upper, argmin, max_depth, max_iter, S, nchil
             break
         if bdepth[bi] >= max_depth or it >= max_iter:
             break
+        if taylor:
+            # a second-order bound around the best point (the box maps of line factors are axis-aligned) may
+            # prune the box at once instead of many halvings
+            # (expanded at the box's point nearest to the best point: there the gradient is small too)
+            for a in range(3):
+                ha = bmap[bi, a, a]
+                ta = (argmin[a] - bmap[bi, a, 3]) / ha if ha > 0.0 else 0.0
+                tloc[a] = min(max(ta, 0.0), 1.0)
+            tb = _taylor_bound(bc[bi], err + bdepth[bi] * level_err, tloc, sizes, TW, TWd, TF3, TF33, TI3)
+            if tb >= upper - tol:
+                if tb < pruned:
+                    pruned = tb
+                live -= 1
+                if bi != live:
+                    for i in range(nb):
+                        bc[bi, i] = bc[live, i]
+                    for i in range(3):
+                        for j in range(4):
+                            bmap[bi, i, j] = bmap[live, i, j]
+                    blow[bi] = blow[live]
+                    bdepth[bi] = bdepth[live]
+                continue
         it += 1
         d = bdepth[bi] + 1
         if d > maxd:
@@ -701,6 +955,16 @@ def run_chunk(points, conn, ids, start, stop, cptr, cidx_, cval, col_a, col_b, c
     st3 = np.empty(3)
     xt = np.empty(3)
     tri = np.empty(maxn)
+    TW = np.zeros((3, maxn))
+    TWd = np.zeros(maxn)
+    tloc = np.zeros(3)
+    TF3 = np.zeros((4, 3))
+    TF33 = np.zeros((4, 3, 3))
+    TI3 = np.zeros((2, 3), dtype=np.int64)
+    line_only = True  # the second-order bound is implemented for products of lines (hexahedra, pyramids)
+    for k in range(nf):
+        if fdim[k] != 1:
+            line_only = False
     for t in range(start, stop):
         err, k, size, degenerate = _cell_coefficients(points, conn, ids[t], cptr, cidx_, cval, col_a, col_b, col_w,
                                                       col_off, xp, xi, xj, xw, dp, di, dj, dw, consts, D, Pc, eP,
@@ -759,7 +1023,8 @@ def run_chunk(points, conn, ids, start, stop, cptr, cidx_, cval, col_a, col_b, c
                 x[a] = argmin[a]
             lower, upper, depth, closed, boxes = _refine(b, err, level_err, tol, value, x, max_depth, max_iter, S,
                                                          nchildren, sizes, fdim, cmaps, ctrl, vidx, bc, bmap, blow,
-                                                         bdepth, kids, work, pmap, cmap, tri)
+                                                         bdepth, kids, work, pmap, cmap, tri, line_only, TW, TWd,
+                                                         tloc, TF3, TF33, TI3)
             if depth == 0:
                 depth = 1  # the point may have left the root's vertices: evaluated, not a coefficient
             if upper < value:  # the search found a lower vertex than the polished point: polish from there

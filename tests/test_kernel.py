@@ -348,3 +348,71 @@ def test_threads_give_identical_results():
     one, two = check(P, H, jobs=1), check(P, H, jobs=2)
     for name in ("min_det", "lower_bound", "argmin", "status", "method"):
         assert np.array_equal(getattr(one, name), getattr(two, name)), name
+
+
+def _box_quadratic_min(Q, q, c):
+    """The exact minimum of x^T Q x / 2 + q . x + c over [0, 1]^3 (any symmetric Q): every face, edge and vertex
+    of the cube by its KKT point (each coordinate free, at 0 or at 1), an oracle independent of the kernel."""
+    import itertools
+
+    best = np.inf
+    for fix in itertools.product((None, 0.0, 1.0), repeat=3):
+        free = [a for a in range(3) if fix[a] is None]
+        x = np.array([0.0 if f is None else f for f in fix])
+        if free:
+            Qf = Q[np.ix_(free, free)]
+            rhs = -(q[free] + Q[np.ix_(free, [a for a in range(3) if a not in free])] @ x[[a for a in range(3) if a not in free]]
+                    if len(free) < 3 else q[free])
+            try:
+                xf = np.linalg.solve(Qf, rhs)
+            except np.linalg.LinAlgError:
+                continue
+            if np.any(xf < 0) or np.any(xf > 1):
+                continue
+            x[free] = xf
+        best = min(best, 0.5 * x @ Q @ x + q @ x + c)
+    return best
+
+
+def test_second_order_bound_is_below_the_exact_minimum_and_tight_near_it():
+    """The kernel's Taylor bound on a box (Bernstein coefficients of a quadratic) is never above the quadratic's
+    exact minimum there, convex or not, minimizer inside or on the boundary; at the minimizer of a convex one
+    it is within rounding of the minimum."""
+    from hexsos_plugins import _kernel_src as src
+
+    rng = np.random.default_rng(61)
+    sp = kernel.tables("hexahedron")
+    mono = sp.exps  # the 27 monomial exponents; M maps Bernstein to monomial coefficients
+    Minv = np.linalg.inv(sp.M)
+    W, Wd = np.zeros((3, 3)), np.zeros(3)
+    F3, F33, I3 = np.zeros((4, 3)), np.zeros((4, 3, 3)), np.zeros((2, 3), dtype=np.int64)
+    tight = 0
+    for trial in range(300):
+        A = rng.standard_normal((3, 3))
+        Q = A @ A.T if trial % 2 else A + A.T  # convex or indefinite
+        x0 = rng.uniform(-0.3, 1.3, 3)
+        q = -Q @ x0
+        c = rng.standard_normal()
+        mono_c = np.zeros(len(mono))
+        for m, e in enumerate(mono):
+            e = tuple(e)
+            if e == (0, 0, 0):
+                mono_c[m] = c
+            elif sum(e) == 1:
+                mono_c[m] = q[int(np.argmax(e))]
+            elif sum(e) == 2 and max(e) == 2:
+                a = int(np.argmax(e))
+                mono_c[m] = 0.5 * Q[a, a]
+            elif sum(e) == 2:
+                a, b = np.flatnonzero(e)
+                mono_c[m] = Q[a, b]
+        bern = Minv @ mono_c
+        exact = _box_quadratic_min(Q, q, c)
+        for t in (np.clip(x0, 0, 1), rng.random(3), np.array([0.0, 1.0, 0.5])):
+            bound = src._taylor_bound(bern, 1e-15, np.ascontiguousarray(t), sp.sizes, W, Wd, F3, F33, I3)
+            assert bound <= exact + 1e-12 * (1 + abs(exact)), (trial, t, bound, exact)
+        if trial % 2 and np.all((x0 > 0) & (x0 < 1)):
+            bound = src._taylor_bound(bern, 0.0, np.ascontiguousarray(x0), sp.sizes, W, Wd, F3, F33, I3)
+            assert bound >= exact - 1e-9 * (1 + abs(exact))
+            tight += 1
+    assert tight > 10
