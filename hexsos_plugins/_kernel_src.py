@@ -1114,3 +1114,54 @@ def polish_many(b, X0, M, exps, G, h, iterations, fdim, fslot, fexp, fcoef, size
             for a in range(3):
                 out[m, a] = X0[m, a]
             vals[m] = v_old
+
+
+@njit(cache=True, nogil=True)
+def scaled_jacobian_chunk(points, conn, ids, start, stop, G, factor, grouped, reflect, out):
+    """Verdict's scaled Jacobian of the cells ids[start:stop] (see :mod:`hexsos_plugins.quality`): G (K, n, 3)
+    the sample matrices (the edge vectors of sample k are E_k = X^T G_k), factor the ideal cell's scale.
+    ``grouped``: samples come in fours, the corners of a tet, whose value is det / the largest of their edge
+    products (tetra, pyramid); else each sample is det / its own edge product (hexahedron, wedge). ``reflect``:
+    values above 1 become 2 - v (pyramids, as Verdict). The minimum over samples goes to out[t]."""
+    K = G.shape[0]
+    n = conn.shape[1]
+    tiny = 2.2250738585072014e-308
+    E = np.empty((3, 3))
+    for t in range(start, stop):
+        m = ids[t]
+        best = np.inf
+        gdet = 0.0
+        gbig = 0.0
+        for k in range(K):
+            for a in range(3):
+                for d in range(3):
+                    E[a, d] = 0.0
+            for i in range(n):
+                node = conn[m, i]
+                for d in range(3):
+                    w = G[k, i, d]
+                    if w != 0.0:
+                        for a in range(3):
+                            E[a, d] += w * points[node, a]
+            det = (E[0, 0] * (E[1, 1] * E[2, 2] - E[1, 2] * E[2, 1]) - E[0, 1] * (E[1, 0] * E[2, 2] - E[1, 2] * E[2, 0])
+                   + E[0, 2] * (E[1, 0] * E[2, 1] - E[1, 1] * E[2, 0]))
+            lengths = 1.0
+            for d in range(3):
+                lengths *= math.sqrt(E[0, d] * E[0, d] + E[1, d] * E[1, d] + E[2, d] * E[2, d])
+            if grouped:
+                if k % 4 == 0:
+                    gdet = det
+                    gbig = lengths
+                elif lengths > gbig:
+                    gbig = lengths
+                if k % 4 == 3:
+                    v = factor * gdet / gbig if gbig > tiny else 0.0
+                    if v < best:
+                        best = v
+            else:
+                v = factor * det / lengths if lengths > tiny else 0.0
+                if v < best:
+                    best = v
+        if reflect and best > 1.0:
+            best = 2.0 - best
+        out[t] = best

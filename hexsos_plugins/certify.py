@@ -430,24 +430,30 @@ def _check_block(P, conn, name, opts: _Options, progress=None, offset=0, total=N
 
     t0 = time.perf_counter()
     M = conn.shape[0]
-    keys = ("lower", "value", "argmin", "err", "scale", "corner", "depth", "closed", "flat", "k", "boxes", "lowroot")
-    r = {k: [] for k in keys}
+    # what the rest needs, for every cell; the rest of the kernel's outputs in scratch reused slice by slice
+    keep = ("lower", "value", "argmin", "err", "scale", "corner", "closed", "flat", "k")
+    if opts.method == "sos":
+        keep += ("lowroot",)
+    full = {k: v for k, v in kernel._run_outputs(M).items() if k in keep}
+    scratch = {k: v for k, v in kernel._run_outputs(min(M, _SLICE)).items() if k not in keep}
+    method = np.empty(M, dtype=np.int8)
+    boxes = 0
     for s in range(0, M, _SLICE):
-        ids = np.arange(s, min(s + _SLICE, M))
-        part = kernel.run_cells(P, conn, ids, name, rtol=opts.rtol, flat_rtol=opts.flat_rtol,
-                                max_depth=opts.max_depth, max_iter=opts.max_boxes)
-        for k in keys:
-            r[k].append(part[k])
+        e = min(s + _SLICE, M)
+        out = {k: v[s:e] for k, v in full.items()}
+        out.update({k: v[: e - s] for k, v in scratch.items()})
+        kernel.run_cells(P, conn, np.arange(s, e), name, rtol=opts.rtol, flat_rtol=opts.flat_rtol,
+                         max_depth=opts.max_depth, max_iter=opts.max_boxes, out=out)
+        method[s:e] = np.where(out["depth"] > 0, _SUBDIVISION, _BERNSTEIN)
+        boxes += int(out["boxes"].sum())
         if progress is not None:
-            progress(offset + ids[-1] + 1, total if total is not None else M)
-    r = {k: (np.concatenate(v) if len(v) > 1 else v[0]) for k, v in r.items()}
+            progress(offset + e, total if total is not None else M)
+    r = full
     lower, value, argmin, err = r["lower"], r["value"], r["argmin"], r["err"]
     scale, flat = r["scale"], r["flat"]
-    method = np.where(r["depth"] > 0, _SUBDIVISION, _BERNSTEIN).astype(np.int8)
     ratio = np.full(M, np.nan)
     sos_status = np.zeros(M, dtype=np.int8)
     sos_solves = 0
-    boxes = int(r["boxes"].sum())
 
     if name == "hexahedron" and opts.method == "sos":
         idx = np.flatnonzero(~flat)

@@ -39,7 +39,8 @@ import numpy as np
 from .jacobian import _indices as _factor_indices
 from .jacobian import space
 
-__all__ = ["run_cells", "coefficients", "evaluate", "polish", "tables", "Tables", "set_threads", "implementation",
+__all__ = ["run_cells", "coefficients", "evaluate", "polish", "scaled_jacobian", "tables", "Tables", "set_threads",
+           "implementation",
            "U", "ETA"]
 
 U = 2.0**-53  # unit roundoff
@@ -300,6 +301,7 @@ def _spread(fn, n_ids, args_of):
 
 
 def _run_outputs(m):
+    """Empty output arrays of run_cells for m cells."""
     return {"lower": np.empty(m), "value": np.empty(m), "argmin": np.empty((m, 3)), "err": np.empty(m),
             "scale": np.empty(m), "corner": np.empty(m), "depth": np.empty(m, dtype=np.int64),
             "closed": np.empty(m, dtype=np.bool_), "flat": np.empty(m, dtype=np.bool_),
@@ -319,19 +321,21 @@ def _run_args(points, conn, ids, t, out, start, stop, rtol=1e-9, flat_rtol=1e-12
 
 
 def run_cells(points, conn, ids, name, *, rtol=1e-9, flat_rtol=1e-12, max_depth=30, max_iter=2000, polish_iter=30,
-              cap=256):
+              cap=256, out=None):
     """Run the kernel on the cells ``conn[ids]`` (rows of node indices into ``points``, VTK order).
 
     Returns a dict of arrays of length len(ids) in *scaled units* (a cell's det J values times 2^(-3 k), k in
     ``k``): ``lower`` (proven lower bound), ``value`` (det J at ``argmin``, up to ``err``), ``argmin`` (len, 3),
     ``err``, ``scale`` (max |b|), ``corner`` (smallest corner coefficient), ``size`` (size of det J's terms),
-    ``depth``, ``closed``, ``flat``, ``boxes``, ``lowroot`` (the root bound min b - err)."""
+    ``depth``, ``closed``, ``flat``, ``boxes``, ``lowroot`` (the root bound min b - err). ``out``: such a dict of
+    C-contiguous arrays (views into larger ones, say) to fill instead."""
     t = tables(name)
     ids = np.ascontiguousarray(ids, dtype=np.int64)
     points = np.ascontiguousarray(points, dtype=np.float64)
     conn = np.ascontiguousarray(conn, dtype=np.int64)
     m = int(ids.size)
-    out = _run_outputs(m)
+    if out is None:
+        out = _run_outputs(m)
     _spread(_impl.run_chunk, m, lambda a, b: _run_args(points, conn, ids, t, out, a, b, rtol, flat_rtol, max_depth,
                                                         max_iter, polish_iter, cap))
     return out
@@ -383,6 +387,32 @@ def polish(b, X0, name, *, iterations=30):
     return out, vals
 
 
+def _sj_args(points, conn, ids, name, out, start, stop):
+    from .quality import SAMPLES
+
+    G, factor = SAMPLES[name]
+    return (points, conn, ids, int(start), int(stop), np.ascontiguousarray(G, dtype=np.float64), float(factor),
+            name in ("tetra", "pyramid"), name == "pyramid", out)
+
+
+def scaled_jacobian(points, cells) -> np.ndarray:
+    """Verdict's scaled Jacobian of every cell, compiled (the definitions and sample tables of
+    :mod:`hexsos_plugins.quality`, which computes the same numbers with numpy). ``cells``: an (M, 8) hex array or
+    (cell_type, conn) pairs; NaN for types without one (quadratic cells)."""
+    from .quality import SAMPLES, as_cell_list
+
+    points = np.ascontiguousarray(points, dtype=np.float64)
+    parts = []
+    for name, conn in as_cell_list(cells):
+        conn = np.ascontiguousarray(conn, dtype=np.int64)
+        out = np.full(conn.shape[0], np.nan)
+        if name in SAMPLES and conn.shape[0] and conn.shape[1] == SAMPLES[name][0].shape[1]:
+            ids = np.arange(conn.shape[0])
+            _spread(_impl.scaled_jacobian_chunk, conn.shape[0], lambda a, b: _sj_args(points, conn, ids, name, out, a, b))
+        parts.append(out)
+    return np.concatenate(parts) if parts else np.zeros(0)
+
+
 def entry_point_arguments() -> dict:
     """Example arguments of every entry point of the compiled source (a trilinear hexahedron), by name: the
     ahead-of-time build derives the exported signatures from them."""
@@ -398,4 +428,5 @@ def entry_point_arguments() -> dict:
         "coefficients_chunk": _coefficient_args(P, conn, ids, t, coeff_outs, 0, 1),
         "evaluate": _evaluate_args(b, X, t, np.empty(1)),
         "polish_many": _polish_args(b, X, t, 30, np.empty((1, 3)), np.empty(1)),
+        "scaled_jacobian_chunk": _sj_args(P, conn, ids, "hexahedron", np.empty(1), 0, 1),
     }
