@@ -18,6 +18,7 @@ EXPERIMENTS = (
     ("argmin_locations", "argmin_locations", "5. where the minimum lies (Figure 10), Knupp's conjecture"),
     ("figures_1_2", "figures_1_2", "6. Figures 1 and 2"),
     ("meshes", "meshes", "7. meshes: Figure 9, Table 1"),
+    ("cell_types", "cell_types", "8. every cell type against Gmsh and VTK sampling"),
 )
 
 __all__ = ["EXPERIMENTS"]

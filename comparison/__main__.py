@@ -30,6 +30,7 @@ def seeds() -> dict:
         + f"; search sigma {argmin_locations.SEARCH['sigma']}: seed {argmin_locations.SEARCH['seed']}",
         "figures_1_2 (exp. 6)": "deterministic (no random numbers)",
         "meshes (exp. 7)": "deterministic (repair has no random numbers)",
+        "cell_types (exp. 8)": "seed [8, type index] (random cells), [8, 100 + type index] (moved mesh nodes)",
     }
 
 
@@ -63,6 +64,11 @@ def _key_line(name, s):
             f2 = x["figure2"]
             return (f"twist invalid inside only from {x['figure1']['first_invalid_deg']:.0f} deg; ball: "
                     f"{f2['inside_only']:,} inside-only, {f2['corner_invalid']:,} corner-invalid of {f2['positions']:,}")
+        if name == "cell_types":
+            x = s["cell_types"]
+            return (f"{x['cells']:,} cells of 9 types: sign disagreements with Gmsh {x['sign_disagreements']}, Gmsh "
+                    f"above ours {x['gmsh_above_ours']}, sampled below our bound {x['sampled_below_lower']}, max "
+                    f"bracket {x['max_bracket']:.1e}")
         if name == "meshes":
             x = s["meshes"]
             return "; ".join(f"{m['mesh']}: {m['invalid']} invalid of {m['hexes']:,}" for m in x["meshes"]) or "no mesh"

@@ -28,10 +28,17 @@ SIZES = {"tiny": {"hexes": 500, "repeat": 1}, "quick": {"hexes": 100_000, "repea
 RTOL_ROUND = 1e-9
 
 
-def gmsh_qualities(points, hexes, *, repeat: int = 1):
-    """Gmsh's minDetJac and maxDetJac (both times 8, [0, 1]^3 units) and the best time of minDetJac."""
+def gmsh_qualities(points, cells, *, repeat: int = 1):
+    """Gmsh's minDetJac and maxDetJac in our units (divided by each type's ``gmsh_factor``: for hexahedra times
+    8, [0, 1]^3 against Gmsh's [-1, 1]^3) and the best time of minDetJac.
+
+    ``cells``: an (M, 8) hex array or (cell_type, conn) pairs in VTK node order (given to Gmsh in its own)."""
     import gmsh
 
+    from hexsos_plugins.elements import ELEMENTS
+
+    if not (isinstance(cells, (list, tuple)) and cells and isinstance(cells[0], (list, tuple))):
+        cells = [("hexahedron", np.asarray(cells))]
     gmsh.initialize(["-noenv"], readConfigFiles=False)
     try:
         gmsh.option.setNumber("General.Terminal", 0)
@@ -39,15 +46,24 @@ def gmsh_qualities(points, hexes, *, repeat: int = 1):
         gmsh.model.add("comparison")
         gmsh.model.addDiscreteEntity(3, 1)
         gmsh.model.mesh.addNodes(3, 1, np.arange(1, len(points) + 1), np.asarray(points, float).ravel())
-        tags = np.arange(1, len(hexes) + 1)
-        gmsh.model.mesh.addElementsByType(1, 5, tags, (np.asarray(hexes) + 1).ravel())
+        tags, factors, start = [], [], 1
+        for name, conn in cells:
+            el = ELEMENTS[name]
+            conn = np.asarray(conn, dtype=np.int64)
+            to_gmsh = np.argsort(el.gmsh_to_vtk)  # gmsh[:, j] = vtk[:, to_gmsh[j]]
+            t = np.arange(start, start + len(conn))
+            gmsh.model.mesh.addElementsByType(1, el.gmsh_type, t, (conn[:, to_gmsh] + 1).ravel())
+            tags.append(t)
+            factors.append(np.full(len(conn), el.gmsh_factor))
+            start += len(conn)
+        tags, factors = np.concatenate(tags), np.concatenate(factors)
         best = np.inf
         for _ in range(repeat):
             t = time.perf_counter()
             qmin = gmsh.model.mesh.getElementQualities(tags, "minDetJac")
             best = min(best, time.perf_counter() - t)
         qmax = gmsh.model.mesh.getElementQualities(tags, "maxDetJac")
-        return 8.0 * np.asarray(qmin), 8.0 * np.asarray(qmax), best
+        return np.asarray(qmin) / factors, np.asarray(qmax) / factors, best
     finally:
         gmsh.finalize()
 

@@ -21,7 +21,19 @@ def extension():
     """A setuptools Extension that compiles the kernel (needs numba and numpy at build time)."""
     os.environ["HEXSOS_KERNEL"] = "jit"  # the kernel module must not look for the extension being built
     import numba
+    import numba.pycc.compiler as pycc_compiler
     from numba.pycc import CC
+
+    class _ReleaseGil(pycc_compiler.Flags):
+        """pycc compiles its exports with default flags, which hold the GIL; the kernel's threads need it
+        released during the compiled call, as numba's nogil=True does (the chunk functions touch no Python
+        object)."""
+
+        def __init__(self, *args, **kwargs):
+            super().__init__(*args, **kwargs)
+            self.release_gil = True
+
+    pycc_compiler.Flags = _ReleaseGil
 
     from hexsos_plugins import _kernel_src, kernel
 

@@ -46,7 +46,7 @@ def test_report_pictures_and_summary_keys(tiny_run):
     for name, _, _ in EXPERIMENTS:
         assert name in s and name in s["experiments"], name
     for title in ("1. Exactness", "2. Against Gmsh", "3. Against VTK", "4. Exact recovery", "5. Where the minimum",
-                  "6. Figures 1 and 2", "7. Meshes"):
+                  "6. Figures 1 and 2", "7. Meshes", "8. Every cell type"):
         assert f"## {title}" in report
     # every table is preceded by its sentence: the line before a header row is blank, the one before it text
     lines = report.splitlines()
@@ -66,6 +66,16 @@ def test_report_pictures_and_summary_keys(tiny_run):
     assert "seed" in report and "random_hexes(sigma=0.3, seed=1)" in report
     assert {"hexes", "max_abs_diff"} <= set(s["sampling"])
     assert {"hexes", "sign_disagreements", "max_gap", "throughput_ratio"} <= set(s["gmsh"])
+
+
+def test_cell_types_agree_with_gmsh_and_vtk_sampling(tiny_run):
+    x = tiny_run[2]["cell_types"]
+    assert {s["type"] for s in x["sets"]} == {"tetra", "tetra10", "pyramid", "wedge", "wedge15", "wedge18", "hexahedron",
+                                              "hexahedron20", "hexahedron27"}
+    assert x["sign_disagreements"] == 0 and x["gmsh_above_ours"] == 0  # Gmsh's certified bound never above our min
+    assert x["sampled_below_lower"] == 0 and x["valid_but_sampled_nonpositive"] == 0  # sampling never refutes us
+    assert x["max_bracket"] <= 1e-8
+    assert sum(s["invalid"] for s in x["sets"]) > 0 and sum(s["inside_only"] for s in x["sets"]) > 0
 
 
 def test_sampling_is_sane(tiny_run):

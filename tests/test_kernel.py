@@ -433,3 +433,35 @@ def test_compiled_scaled_jacobian_is_verdicts_as_quality_computes_it():
         assert np.allclose(a, b, rtol=0, atol=1e-13), name
     X = _perturbed("hexahedron27", 3, 0.1, 72)
     assert np.isnan(kernel.scaled_jacobian(X.reshape(-1, 3), [("hexahedron27", np.arange(81).reshape(3, 27))])).all()
+
+
+def test_the_compiled_kernel_releases_the_gil():
+    """The kernel's threads run in parallel only if its compiled calls release the GIL: while one runs, another
+    Python thread keeps counting (with the GIL held it would stand still for the whole call)."""
+    import threading
+
+    from hexsos_plugins.examples import structured_grid
+
+    P, H = structured_grid(60)  # 216,000 hexes: a call of a good fraction of a second
+    ids = np.arange(len(H))
+    t = kernel.tables("hexahedron")
+    out = kernel._run_outputs(len(ids))
+    kernel._impl.run_chunk(*kernel._run_args(P, H, ids, t, out, 0, 10))
+    done, count = threading.Event(), [0]
+
+    def spin():
+        while not done.is_set():
+            count[0] += 1
+
+    th = threading.Thread(target=spin)
+    th.start()
+    try:
+        while count[0] == 0:
+            pass
+        c0 = count[0]
+        kernel._impl.run_chunk(*kernel._run_args(P, H, ids, t, out, 0, len(ids)))
+        c1 = count[0]
+    finally:
+        done.set()
+        th.join()
+    assert c1 - c0 > 10_000, c1 - c0
