@@ -54,6 +54,13 @@ BOUNDARY_MODES = ("slide", "fixed", "free")
 _KERNEL_METHODS = ("auto", "sos")
 
 
+#: Stage 2 optimizes the cells whose scaled Jacobian is below a threshold (and ``rings`` layers around them): at
+#: first max(0.5, min + 0.2), raised while the minimum reaches it, never above this. Cells at or above it do not
+#: move (measured on a 32,000-hex ring with 2% of its interior vertices moved: with 0.95 every vertex moved, min SJ
+#: 0.95 in 59 s; with 0.75 the damage's neighbourhood only).
+_TAU_MAX = 0.75
+
+
 class _Stopped(Exception):
     pass
 
@@ -518,7 +525,7 @@ class _Optimize:
                 rounds_left = self.max_rounds
                 sj = cell_scaled_jacobians(V, blocks)
                 m = min(float(s.min()) for s in sj if s.size)
-                tau = (self.min_sj + 0.1) if self.min_sj is not None else min(max(0.5, m + 0.2), 0.95)
+                tau = (self.min_sj + 0.1) if self.min_sj is not None else min(max(0.5, m + 0.2), _TAU_MAX)
                 while rounds_left > 0:
                     low = [s < tau for s in sj]
                     if not any(lw.any() for lw in low):
@@ -537,9 +544,9 @@ class _Optimize:
                     sj = cell_scaled_jacobians(V, blocks)
                     m_new = min(float(s.min()) for s in sj if s.size)
                     # the cells left out (scaled Jacobian >= tau) cap the minimum: widen the region while it pays
-                    if (self.min_sj is None and m_new > tau - 0.05 and tau < 0.95 and m_new > m + 1e-3
+                    if (self.min_sj is None and m_new > tau - 0.05 and tau < _TAU_MAX and m_new > m + 1e-3
                             and not (deadline is not None and time.perf_counter() > deadline)):
-                        m, tau = m_new, min(m_new + 0.2, 0.95)
+                        m, tau = m_new, min(m_new + 0.2, _TAU_MAX)
                         continue
                     break
             stage_s["quality"] = time.perf_counter() - ts
