@@ -57,7 +57,7 @@ from itertools import product
 
 import numpy as np
 
-__all__ = ["Element", "ELEMENTS", "CELL_TYPES", "VOXEL_TO_VTK", "element", "cell_type_code"]
+__all__ = ["Element", "ELEMENTS", "CELL_TYPES", "VOXEL_TO_VTK", "element", "cell_type_code", "world_points"]
 
 #: VTK_VOXEL (cell type 11) orders its nodes with x fastest; ``voxel[:, VOXEL_TO_VTK]`` is a hexahedron.
 VOXEL_TO_VTK = np.array([0, 1, 3, 2, 4, 5, 7, 6])
@@ -354,3 +354,23 @@ def element(name: str) -> Element:
 def cell_type_code(name: str) -> int:
     """The index of a cell type in :data:`CELL_TYPES`."""
     return CELL_TYPES.index(element(name).name)
+
+
+def world_points(points, cells, pcoords) -> np.ndarray:
+    """x(pcoords) of one parametric point per cell, by the cells' own shape functions: (M, 3).
+
+    ``cells``: an (M, 8) array of hexahedra or (cell_type, conn) pairs, VTK node order; ``pcoords`` (M, 3) in
+    the blocks' order (e.g. :attr:`hexsos_plugins.CheckResult.argmin`). A pyramid's point has t = 0 (its
+    measure does not depend on t: see the module docstring): it lies on the base."""
+    points = np.asarray(points, dtype=np.float64)
+    pcoords = np.asarray(pcoords, dtype=np.float64).reshape(-1, 3)
+    if not (isinstance(cells, (list, tuple)) and cells and isinstance(cells[0], (list, tuple))):
+        cells = [("hexahedron", cells)]
+    out, s = np.empty((len(pcoords), 3)), 0
+    for name, conn in cells:
+        conn = np.asarray(conn, dtype=np.int64)
+        m = len(conn)
+        N = element(name).shape_functions(pcoords[s : s + m])  # (m, n)
+        out[s : s + m] = np.einsum("mn,mna->ma", N, points[conn])
+        s += m
+    return out

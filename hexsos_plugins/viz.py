@@ -12,7 +12,7 @@ import numpy as np
 
 from .errors import DependencyError, MeshWriteError
 
-__all__ = ["screenshot", "histogram", "relative_min_det", "world_points"]
+__all__ = ["screenshot", "histogram", "relative_min_det"]
 
 
 def relative_min_det(result) -> np.ndarray:
@@ -48,21 +48,6 @@ def _grid(pv, points, blocks):
         parts.append(np.hstack([np.full((len(conn), 1), conn.shape[1]), conn]).ravel())
         types.append(np.full(len(conn), ELEMENTS[t].vtk_type, dtype=np.uint8))
     return pv.UnstructuredGrid(np.concatenate(parts), np.concatenate(types), np.asarray(points, float))
-
-
-def world_points(points, cells, uvw) -> np.ndarray:
-    """x(u, v, w) of one parametric point per cell (the cells' own shape functions): (M, 3)."""
-    from .elements import ELEMENTS
-
-    points = np.asarray(points, float)
-    uvw = np.asarray(uvw, float)
-    out, s = np.empty((len(uvw), 3)), 0
-    for t, conn in _blocks(cells):
-        m = len(conn)
-        N = ELEMENTS[t].shape_functions(uvw[s : s + m])  # (m, n)
-        out[s : s + m] = np.einsum("mn,mna->ma", N, points[conn])
-        s += m
-    return out
 
 
 def screenshot(points, cells, result, path, *, window_size=(1400, 1000), title: str | None = None) -> str:
@@ -111,6 +96,8 @@ def screenshot(points, cells, result, path, *, window_size=(1400, 1000), title: 
                        line_width=2, label=label)
     bad = np.flatnonzero(result.status != 1)
     if bad.size:  # (then at least one labelled item exists for the legend)
+        from .elements import world_points
+
         where = world_points(points, blocks, result.argmin)[bad]
         p.add_mesh(pv.PolyData(where).glyph(geom=pv.Sphere(radius=0.18 * h), scale=False, orient=False),
                    color="black", label="where det J is smallest")

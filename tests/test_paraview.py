@@ -27,7 +27,7 @@ pytest.importorskip("vtkmodules.vtkIOXML")  # this process writes the .vtu files
 import hexsos_plugins as hs  # noqa: E402
 import vtk_filter  # noqa: E402
 from hexsos_plugins.examples import structured_grid  # noqa: E402
-from test_vtk_filter import HEX, TETRA, VOXEL, make_grid, voxel_block  # noqa: E402
+from test_vtk_filter import HEX, QUAD, TETRA, VOXEL, VOXEL_NODE_OF_HEX_NODE, make_grid, voxel_block  # noqa: E402
 from vtkmodules.vtkIOXML import vtkXMLUnstructuredGridWriter  # noqa: E402
 
 VTK_FILTER_DIR = os.path.dirname(os.path.abspath(vtk_filter.__file__))
@@ -56,6 +56,11 @@ def versions():
     return {"python": sys.version.split()[0],
             **{k: [getattr(m, "__version__", "?"), m.__file__] for k, m in mods.items()}}
 """
+
+
+def expected_conn(cells, *vtk_types):
+    """The connectivity of the cells of these VTK types, in the grid's order (voxels reordered as hexahedra)."""
+    return np.array([np.asarray(c)[VOXEL_NODE_OF_HEX_NODE] if t == VOXEL else c for t, c in cells if t in vtk_types])
 
 
 def write_vtu(grid, path):
@@ -88,7 +93,8 @@ def run_pvpython(tmp_path, body, *, env_extra=None, patch=True, drop=()):
 
 @pytest.fixture(scope="module")
 def mixed_vtu(tmp_path_factory):
-    """The demo mesh (Gmsh; a structured grid with a pushed vertex without it), a folded voxel block and a tet."""
+    """A tet, the demo mesh (Gmsh; a structured grid with a pushed vertex without it) and a folded voxel block;
+    the expected check of every cell in the grid's order (the plugin checks tets too, voxels as hexahedra)."""
     try:
         from hexsos_plugins.examples import demo_mesh
 
@@ -100,14 +106,15 @@ def mixed_vtu(tmp_path_factory):
     n0 = P.shape[0]
     points = np.concatenate([P, Pv])
     cells = [(TETRA, H[0][[0, 1, 3, 4]])] + [(HEX, h) for h in H] + [(VOXEL, n0 + v) for v in V]
-    hexes = np.concatenate([H, n0 + Hv])
     path = write_vtu(make_grid(points, cells), tmp_path_factory.mktemp("pv") / "mixed.vtu")
-    return path, hs.check(points, hexes), 1 + np.arange(hexes.shape[0])
+    expected = hs.check(points, [("tetra", H[:1, [0, 1, 3, 4]]), ("hexahedron", np.concatenate([H, n0 + Hv]))])
+    return path, expected, points, cells
 
 
 def test_check_filter_by_label_in_pvpython(tmp_path, mixed_vtu):
-    path, expected, hex_cells = mixed_vtu
-    tets = write_vtu(make_grid(np.eye(4)[:, :3], [(TETRA, [0, 1, 2, 3])]), tmp_path / "tets.vtu")
+    path, expected, points, cells = mixed_vtu
+    quads = write_vtu(make_grid(np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], float), [(QUAD, [0, 1, 2, 3])]),
+                      tmp_path / "quads.vtu")
     res, proc = run_pvpython(tmp_path, f"""
         import json
         from paraview.simple import *
@@ -126,19 +133,23 @@ def test_check_filter_by_label_in_pvpython(tmp_path, mixed_vtu):
                   "properties": sorted(check.ListProperties()),
                   "repair_properties": sorted(HexSOSRepair(Input=reader).ListProperties()),
                   "versions": versions()}}
-        # a grid without hexahedra: an error message, no crash, an empty output
-        bad = HexSOSCheck(Input=XMLUnstructuredGridReader(FileName=[{tets!r}]))
+        # a grid without 3-D cells: an error message, no crash, an empty output
+        bad = HexSOSCheck(Input=XMLUnstructuredGridReader(FileName=[{quads!r}]))
         bad.UpdatePipeline()
         result["no_hex"] = report(bad, 0)
         json.dump(result, open(OUT, "w"))
     """)
     mesh, folds = res["mesh"], res["folds"]
     status = np.array(mesh["cell:hexsos_status"])
-    assert status[0] == -2 and np.isnan(mesh["cell:hexsos_min_det"][0])
-    assert status[hex_cells].tolist() == expected.status.tolist()
+    assert status[0] == 1 and expected.cell_type_names()[0] == "tetra"  # the tet is checked too
+    assert status.tolist() == expected.status.tolist()
     # ParaView's Python runs the kernel on its own numpy (1.24) and scipy (1.10): equal up to the polish
-    assert np.allclose(np.array(mesh["cell:hexsos_min_det"])[hex_cells], expected.min_det, rtol=1e-9, atol=1e-12)
-    assert np.allclose(np.array(mesh["cell:hexsos_argmin"])[hex_cells], expected.argmin, rtol=0, atol=1e-6)
+    assert np.allclose(mesh["cell:hexsos_min_det"], expected.min_det, rtol=1e-9, atol=1e-12)
+    assert np.allclose(mesh["cell:hexsos_argmin"], expected.argmin, rtol=0, atol=1e-6)
+    # the corner scaled Jacobian of every cell, as the compiled kernel computes it here
+    assert np.allclose(mesh["cell:hexsos_scaled_jacobian"], hs.kernel.scaled_jacobian(
+        points, [("tetra", expected_conn(cells, TETRA)), ("hexahedron", expected_conn(cells, HEX, VOXEL))]),
+        rtol=0, atol=1e-12)
     counts = expected.counts()
     assert (status == 0).sum() == counts["invalid"] >= 3 and counts["invalid_inside_only"] >= 1
     # the second output port: one point per invalid hex
@@ -149,7 +160,7 @@ def test_check_filter_by_label_in_pvpython(tmp_path, mixed_vtu):
     assert res["properties"] == ["Input", "Method", "Relaxation"]
     assert res["repair_properties"] == ["Input", "Margin", "MaxIterations", "Method", "PinBoundary",
                                         "PinNonHexPoints", "Relaxation", "Rho"]
-    assert res["no_hex"]["cells"] == 0 and "no hexahedra" in proc.stderr
+    assert res["no_hex"]["cells"] == 0 and "no 3-D cells" in proc.stderr
     # ParaView's own numpy and VTK stay first on sys.path; the rest comes from HEXSOS_PYTHONPATH / the repo
     v = res["versions"]
     ours = [sysconfig.get_paths()["purelib"], sysconfig.get_paths()["platlib"]]
@@ -164,7 +175,7 @@ def test_repair_filter_in_pvpython(tmp_path):
     path = write_vtu(make_grid(P, [(HEX, h) for h in H]), tmp_path / "damaged.vtu")
     from hexsos_plugins import repair
 
-    expected = repair(P, H)
+    expected = repair(P, H, method="paper", rho=200.0, max_iter=100)  # the filter's algorithm and defaults
     assert expected.success
     res, _ = run_pvpython(tmp_path, f"""
         import json
@@ -183,7 +194,7 @@ def test_repair_filter_in_pvpython(tmp_path):
 def test_plugin_autoloads_from_pv_plugin_path_with_the_compat_directory(tmp_path, mixed_vtu):
     """The GUI's way: PV_PLUGIN_PATH names vtk_filter/ (every .py in it gets loaded, __init__.py too) and
     PYTHONPATH the directory whose usercustomize.py patches inspect; the script itself patches nothing."""
-    path, expected, _ = mixed_vtu
+    path, expected, _, _ = mixed_vtu
     res, proc = run_pvpython(tmp_path, f"""
         import json
         from paraview.simple import *

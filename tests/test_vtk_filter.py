@@ -134,9 +134,23 @@ def mixed(demo):
     hex_cells = np.array(hex_cells)
     expected = hs.check(points, hexes)
     inside_only_cell = hex_cells[info["inside_only_hex"] if info["inside_only_hex"] < 300 else info["inside_only_hex"] + 8]
+    # the oracle of every cell: hs.check on the cells of each 3-D type (VTK order: the tets, the wedge and the
+    # pyramid as given, voxels reordered by the test's own table), NaN / -2 on the quad
+    names = {TETRA: "tetra", WEDGE: "wedge", PYRAMID: "pyramid"}
+    by_cell = {k: np.full(len(cells), np.nan) for k in ("hexsos_min_det", "hexsos_lower_bound", "hexsos_corner_min_det")}
+    by_cell["hexsos_status"] = np.full(len(cells), -2, dtype=np.int8)
+    by_cell["hexsos_argmin"] = np.full((len(cells), 3), np.nan)
+    for vt, name in names.items():
+        ids = [i for i, (t, _) in enumerate(cells) if t == vt]
+        r = hs.check(points, [(name, np.array([cells[i][1] for i in ids]))])
+        for k, v in r.cell_data().items():
+            by_cell[k][ids] = v
+    for k, v in expected.cell_data().items():
+        by_cell[k][hex_cells] = v
     return {"grid": grid, "points": points, "hexes": hexes, "hex_cells": hex_cells, "expected": expected,
             "types": np.array([t for t, _ in cells]), "inside_only_cell": int(inside_only_cell),
-            "voxel_cells": hex_cells[300:308]}
+            "voxel_cells": hex_cells[300:308], "by_cell": by_cell,
+            "checked": np.array([t != QUAD for t, _ in cells])}
 
 
 def run_check(grid, **options):
@@ -217,27 +231,27 @@ def test_package_init_loaded_as_a_paraview_plugin_runs_nothing():
 
 
 def test_check_mixed_grid_arrays_equal_the_kernel_in_the_right_cells(mixed):
-    grid, exp, cells = mixed["grid"], mixed["expected"], mixed["hex_cells"]
+    """Every 3-D cell (hexahedra, voxels, tets, the wedge, the pyramid) gets the kernel's values of its own
+    type in its own cell; the quad (2-D) NaN and -2."""
+    grid, exp, by_cell = mixed["grid"], mixed["expected"], mixed["by_cell"]
     before = fingerprint(grid)
     f = run_check(grid)
     out = f.GetOutputDataObject(0)
     assert out.GetNumberOfCells() == grid.GetNumberOfCells() and out.GetNumberOfPoints() == grid.GetNumberOfPoints()
     assert [out.GetCellType(i) for i in range(out.GetNumberOfCells())] == mixed["types"].tolist()
-    other = np.setdiff1d(np.arange(out.GetNumberOfCells()), cells)
-    assert other.size == 5  # 2 tets, a quad, a wedge, a pyramid
-    for name, values in exp.cell_data().items():
+    assert (~mixed["checked"]).sum() == 1  # the quad
+    for name, values in by_cell.items():
         got = cell_array(out, name)
         assert got.dtype == np.asarray(values).dtype, name
-        assert np.array_equal(got[cells], values), name
-        if name == "hexsos_status":
-            assert (got[other] == -2).all()
-        else:
-            assert np.isnan(got[other]).all(), name
+        assert np.array_equal(got, values, equal_nan=True), name
+    assert (cell_array(out, "hexsos_status")[mixed["types"] == TETRA] != -2).all()  # tets are checked now
     assert out.GetCellData().GetArray("hexsos_argmin").GetNumberOfComponents() == 3
+    sj = cell_array(out, "hexsos_scaled_jacobian")
+    assert np.isfinite(sj[mixed["checked"]]).all() and np.isnan(sj[~mixed["checked"]]).all()
     # the inside-only hex is found in its cell
     c = mixed["inside_only_cell"]
     assert cell_array(out, "hexsos_status")[c] == 0 and cell_array(out, "hexsos_corner_min_det")[c] > 0
-    assert f.GetResult().counts() == exp.counts()
+    assert f.GetResult().counts()["cells"] == int(mixed["checked"].sum())
     assert exp.counts()["invalid"] >= 3 and exp.counts()["invalid_inside_only"] >= 1
     # every input array kept, unchanged; the input itself untouched
     assert np.array_equal(cell_array(out, "material"), cell_array(grid, "material"))
@@ -251,33 +265,40 @@ def test_check_mixed_grid_arrays_equal_the_kernel_in_the_right_cells(mixed):
             == grid.GetPoints().GetData().GetAddressAsString("vtkDataArray"))
 
 
-def test_fold_points_one_per_invalid_hex_at_x_of_argmin(mixed):
+def test_fold_points_one_per_invalid_cell_at_x_of_argmin(mixed):
+    from vtkmodules.vtkCommonDataModel import vtkGenericCell
+
     f = run_check(mixed["grid"])
     out, folds = f.GetOutputDataObject(0), f.GetOutputDataObject(1)
     assert folds.GetClassName() == "vtkPolyData"
     status = cell_array(out, "hexsos_status")
     invalid_cells = np.flatnonzero(status == 0)
-    assert folds.GetNumberOfPoints() == invalid_cells.size == mixed["expected"].invalid.sum()
+    assert folds.GetNumberOfPoints() == invalid_cells.size > mixed["expected"].invalid.sum() - 1
     assert folds.GetNumberOfVerts() == invalid_cells.size
     pd = folds.GetPointData()
     cell_ids = vtk_to_numpy(pd.GetArray("hexsos_cell_id"))
-    hex_ids = vtk_to_numpy(pd.GetArray("hexsos_hex_id"))
-    assert cell_ids.tolist() == invalid_cells.tolist()
-    assert mixed["hex_cells"][hex_ids].tolist() == cell_ids.tolist()
+    assert sorted(cell_ids.tolist()) == invalid_cells.tolist()
     assert np.array_equal(vtk_to_numpy(pd.GetArray("hexsos_min_det")), cell_array(out, "hexsos_min_det")[cell_ids])
     inside = vtk_to_numpy(pd.GetArray("hexsos_invalid_inside_only"))
     assert inside.tolist() == (cell_array(out, "hexsos_corner_min_det")[cell_ids] > 0).astype(int).tolist()
     assert inside[cell_ids.tolist().index(mixed["inside_only_cell"])] == 1
-    # x(argmin) by VTK's own hexahedron interpolation (parametric coordinates [0, 1]^3, VTK node order)
+    # x(argmin) by VTK's own interpolation of each cell (its parametric coordinates, VTK node order; voxels are
+    # checked as the equivalent hexahedra, so evaluated as those)
     X = vtk_to_numpy(folds.GetPoints().GetData())
     argmin = cell_array(out, "hexsos_argmin")
     points = mixed["points"]
-    for i, (c, h) in enumerate(zip(cell_ids, hex_ids)):
-        cell = vtkHexahedron()
-        for k, node in enumerate(mixed["hexes"][h]):
-            cell.GetPointIds().SetId(k, k)
-            cell.GetPoints().SetPoint(k, *points[node])
-        x, w = [0.0, 0.0, 0.0], [0.0] * 8
+    hex_of = dict(zip(mixed["hex_cells"].tolist(), range(len(mixed["hex_cells"]))))
+    grid = mixed["grid"]
+    for i, c in enumerate(cell_ids):
+        if int(c) in hex_of:
+            cell = vtkHexahedron()
+            for k, node in enumerate(mixed["hexes"][hex_of[int(c)]]):
+                cell.GetPointIds().SetId(k, k)
+                cell.GetPoints().SetPoint(k, *points[node])
+        else:
+            cell = vtkGenericCell()
+            grid.GetCell(int(c), cell)
+        x, w = [0.0, 0.0, 0.0], [0.0] * cell.GetNumberOfPoints()
         cell.EvaluateLocation(reference(0), list(argmin[c]), x, w)
         assert np.allclose(X[i], x, rtol=0, atol=1e-12), (c, X[i], x)
 
@@ -352,18 +373,29 @@ def _tets_only():
     return make_grid(np.eye(4)[:, :3], [(TETRA, [0, 1, 2, 3])])
 
 
-@pytest.mark.parametrize("make", [_tets_only, lambda: make_grid(np.zeros((0, 3)), [])], ids=["tets", "empty"])
+def _quads_only():
+    return make_grid(np.eye(4)[:, :3], [(QUAD, [0, 1, 2, 3])])
+
+
+@pytest.mark.parametrize("make", [_quads_only, lambda: make_grid(np.zeros((0, 3)), [])], ids=["quads", "empty"])
 @pytest.mark.parametrize("cls", [HexSOSCheckFilter, HexSOSRepairFilter])
-def test_no_hexahedra_is_a_vtk_error_not_a_crash(make, cls):
+def test_no_3d_cells_is_a_vtk_error_not_a_crash(make, cls):
     f = cls()
     msgs = Messages(f)
     f.SetInputDataObject(0, make())
     assert not f.Update()  # the request fails...
-    assert len(msgs.errors) == 1 and "no hexahedra" in msgs.errors[0]  # ...with one error event
+    assert len(msgs.errors) == 1 and "no 3-D cells" in msgs.errors[0]  # ...with one error event
     for port in range(f.GetNumberOfOutputPorts()):
         out = f.GetOutputDataObject(port)
         assert out.GetNumberOfCells() == 0 and out.GetNumberOfPoints() == 0
     assert f.GetResult() is None
+
+
+def test_a_grid_of_tets_is_checked():
+    f = run_check(_tets_only())
+    out = f.GetOutputDataObject(0)
+    assert cell_array(out, "hexsos_status").tolist() == [0]  # np.eye(4)[:, :3] is a mirrored unit tet
+    assert cell_array(out, "hexsos_min_det").tolist() == [-1.0]
 
 
 def test_errors_go_to_the_output_window_without_observers():
@@ -373,7 +405,7 @@ def test_errors_go_to_the_output_window_without_observers():
     vtkOutputWindow.SetInstance(window)
     try:
         f = HexSOSCheckFilter()
-        f.SetInputDataObject(0, _tets_only())
+        f.SetInputDataObject(0, _quads_only())
         f.Update()
         P, H = structured_grid(1)
         P[H[0][6]] = np.nan
@@ -383,7 +415,7 @@ def test_errors_go_to_the_output_window_without_observers():
         vtkOutputWindow.SetInstance(previous)
         previous.UnRegister(None)
     text = window.GetOutput()
-    assert "ERROR" in text and "no hexahedra" in text and "it has 1 of type 10" in text
+    assert "ERROR" in text and "no 3-D cells" in text and "it has 1 of type 9" in text
     assert "finite" in text  # the kernel's InvalidInputError, reported the same way
 
 
@@ -428,7 +460,8 @@ def test_repair_filter_certifies_and_reports_the_displacement(damaged):
     assert types_out.tolist() == np.where(types_in == VOXEL, HEX, types_in).tolist()
     status = cell_array(out, "hexsos_status")
     assert (status[(types_in == HEX) | (types_in == VOXEL)] == 1).all()
-    assert (status[(types_in != HEX) & (types_in != VOXEL)] == -2).all()
+    assert status[types_in == TETRA].tolist() == [1]  # the tet is checked after the repair too
+    assert status[types_in == QUAD].tolist() == [-2]  # a 2-D cell is not
     old = vtk_to_numpy(damaged.GetPoints().GetData()).astype(np.float64)
     new = vtk_to_numpy(out.GetPoints().GetData())
     assert new.dtype == np.float64 and np.array_equal(new, r.points)
@@ -569,18 +602,17 @@ def test_reader_filter_writer_round_trip_keeps_the_arrays(mixed, tmp_path):
     back.SetFileName(str(dst))
     back.Update()
     got = back.GetOutput()
-    exp, cells = mixed["expected"], mixed["hex_cells"]
-    for name, values in exp.cell_data().items():
+    exp = mixed["expected"]
+    for name, values in mixed["by_cell"].items():
         arr = cell_array(got, name)
         assert arr.dtype == np.asarray(values).dtype
-        assert np.array_equal(arr[cells], values), name
-    assert np.isnan(cell_array(got, "hexsos_min_det")[0]) and cell_array(got, "hexsos_status")[0] == -2
+        assert np.array_equal(arr, values, equal_nan=True), name
     assert np.array_equal(cell_array(got, "material"), cell_array(mixed["grid"], "material"))
     assert [got.GetCellType(i) for i in range(got.GetNumberOfCells())] == mixed["types"].tolist()
     fr = vtkXMLPolyDataReader()
     fr.SetFileName(str(folds_file))
     fr.Update()
-    assert fr.GetOutput().GetNumberOfPoints() == int(exp.invalid.sum())
+    assert fr.GetOutput().GetNumberOfPoints() == int((mixed["by_cell"]["hexsos_status"] == 0).sum())
     assert fr.GetOutput().GetPointData().GetArray("hexsos_invalid_inside_only") is not None
 
 

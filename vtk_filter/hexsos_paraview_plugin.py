@@ -300,32 +300,38 @@ def _cell_type_summary(types) -> str:
     return ", ".join(f"{int(c)} of type {int(v)}" for v, c in zip(values, counts))
 
 
-def _hexahedra(grid, voxel_to_vtk):
-    """The grid's hexahedra as the kernel takes them.
+def _checkable(grid, elements):
+    """The grid's 3-D cells hexsos checks, grouped by type (in first-appearance order of the types).
 
     Returns
     -------
-    cell_ids : (M,) int64, the cell index in the grid of each hex (hex order = cell order)
-    hexes : (M, 8) int64, point ids in VTK hexahedron order (voxels reordered with ``voxel_to_vtk``)
-    is_voxel : (M,) bool
-    types : (C,) uint8, every cell's type
+    blocks : list of (cell_type, conn (m, n) int64 VTK order, cell_ids (m,) int64); voxels as hexahedra
+    types : (C,) uint8, every cell's VTK type
     """
     types = _cell_types(grid)
-    cell_ids = np.flatnonzero((types == VTK_HEXAHEDRON) | (types == VTK_VOXEL)).astype(np.int64)
-    if cell_ids.size == 0:
-        return cell_ids, np.zeros((0, 8), dtype=np.int64), np.zeros(0, dtype=bool), types
+    by_vtk = {el.vtk_type: name for name, el in elements.ELEMENTS.items()}
+    by_vtk[VTK_VOXEL] = "voxel"
+    present = [int(t) for t in dict.fromkeys(types.tolist()) if int(t) in by_vtk]
+    if not present:
+        return [], types
     offsets, conn = _cells(grid)
     offsets = np.asarray(offsets, dtype=np.int64)
-    sizes = offsets[cell_ids + 1] - offsets[cell_ids]
-    if np.any(sizes != 8):
-        bad = int(cell_ids[np.flatnonzero(sizes != 8)[0]])
-        raise ValueError(f"cell {bad} is a hexahedron/voxel (type {int(types[bad])}) with "
-                         f"{int(offsets[bad + 1] - offsets[bad])} points: expected 8")
-    H = np.asarray(conn, dtype=np.int64)[offsets[cell_ids][:, None] + np.arange(8)]
-    is_voxel = types[cell_ids] == VTK_VOXEL
-    if is_voxel.any():
-        H[is_voxel] = H[is_voxel][:, voxel_to_vtk]
-    return cell_ids, H, is_voxel, types
+    conn = np.asarray(conn, dtype=np.int64)
+    blocks = []
+    for vt in present:
+        name = by_vtk[vt]
+        el = elements.ELEMENTS["hexahedron" if name == "voxel" else name]
+        cell_ids = np.flatnonzero(types == vt).astype(np.int64)
+        sizes = offsets[cell_ids + 1] - offsets[cell_ids]
+        if np.any(sizes != el.n_nodes):
+            bad = int(cell_ids[np.flatnonzero(sizes != el.n_nodes)[0]])
+            raise ValueError(f"cell {bad} is a {name} (VTK type {vt}) with {int(offsets[bad + 1] - offsets[bad])} "
+                             f"points: expected {el.n_nodes}")
+        H = conn[offsets[cell_ids][:, None] + np.arange(el.n_nodes)]
+        if name == "voxel":
+            H = H[:, elements.VOXEL_TO_VTK]
+        blocks.append(("hexahedron" if name == "voxel" else name, H, cell_ids))
+    return blocks, types
 
 
 def _vtk_array(name, values):
@@ -343,13 +349,28 @@ def _spread(values, cell_ids, n_cells, fill):
 
 
 def _add_result_cell_arrays(out, result, cell_ids):
-    """Write ``result.cell_data()`` onto ``out``'s cell data, cell ``cell_ids[m]`` getting hex m's values."""
+    """Write ``result.cell_data()`` (and ``hexsos_scaled_jacobian`` when the result carries it) onto ``out``'s
+    cell data, cell ``cell_ids[m]`` getting checked cell m's values."""
     n = out.GetNumberOfCells()
     cd = out.GetCellData()
-    for name, values in result.cell_data().items():
+    arrays = dict(result.cell_data())
+    if "scaled_jacobian" in getattr(result, "extra", {}):
+        arrays["hexsos_scaled_jacobian"] = result.extra["scaled_jacobian"]
+    for name, values in arrays.items():
         values = np.asarray(values)
         fill = STATUS_NOT_A_HEX if np.issubdtype(values.dtype, np.integer) else np.nan
         cd.AddArray(_vtk_array(name, _spread(values, cell_ids, n, fill)))
+
+
+def _add_other_cells(out, checked, cell_ids):
+    """Status and min det J of the repair's other 3-D cells (``RepairResult.extra["other_cells"]``, one dict per
+    block, blocks in ``cell_ids``' order) into the hex arrays :func:`_add_result_cell_arrays` wrote."""
+    cd = out.GetCellData()
+    for block, ids in zip(checked, cell_ids):
+        for name, key in (("hexsos_status", "status"), ("hexsos_min_det", "min_det")):
+            arr = cd.GetArray(name)
+            for i, v in zip(ids.tolist(), np.asarray(block[key]).tolist()):
+                arr.SetTuple1(i, v)
 
 
 def _voxels_as_hexahedra(out, inp, types, voxel_cells, voxel_hexes):
@@ -379,19 +400,11 @@ def _add_summary(data, name, text):
     data.GetFieldData().AddArray(arr)
 
 
-def _trilinear(points, hexes, uvw) -> np.ndarray:
-    """x(u, v, w) of each hex: (K, 3) world points for hexes (K, 8) (VTK order) at parameters (K, 3)."""
-    if hexes.shape[0] == 0:
-        return np.zeros((0, 3))
-    from hexsos_plugins.hexahedron import map_points
-
-    return map_points(np.asarray(points, dtype=np.float64)[hexes], uvw)
-
-
-def _argmin_polydata(points, hexes, cell_ids, result) -> vtkPolyData:
-    """Vertices at x(argmin) of every invalid hex, with its ids and values as point data."""
+def _argmin_polydata(points, blocks, cell_ids, result, elements) -> vtkPolyData:
+    """Vertices at x(argmin) of every invalid cell (where it folds), with its ids and values as point data."""
     bad = np.flatnonzero(result.status == 0)
-    X = _trilinear(points, hexes[bad], result.argmin[bad])
+    X = elements.world_points(points, [(t, c) for t, c, _ in blocks], result.argmin)[bad] if bad.size else \
+        np.zeros((0, 3))
     poly = vtkPolyData()
     pts = vtkPoints()
     pts.SetDataTypeToDouble()
@@ -487,16 +500,16 @@ class _HexSOSBase(VTKPythonAlgorithmBase):
         self.UpdateProgress(min(1.0, done / total) if total else 1.0)
 
     def _prepare(self, grid, submodule):
-        """The kernel and the grid's hexahedra (see :func:`_hexahedra`); raises what ``RequestData`` reports."""
-        kernel = _kernel("hexahedron", submodule)
-        from hexsos_plugins.hexahedron import VOXEL_TO_VTK
-
-        cell_ids, H, is_voxel, types = _hexahedra(grid, VOXEL_TO_VTK)
-        if cell_ids.size == 0:
+        """The kernel and the grid's checkable cells (see :func:`_checkable`); raises what ``RequestData``
+        reports."""
+        kernel = _kernel("elements", submodule)
+        elements = sys.modules["hexsos_plugins.elements"]
+        blocks, types = _checkable(grid, elements)
+        if not blocks:
             raise kernel.NoHexahedraError(
-                f"the input has no hexahedra (VTK_HEXAHEDRON = 12 or VTK_VOXEL = 11) to check: it has "
-                f"{_cell_type_summary(types)}")
-        return kernel, cell_ids, H, is_voxel, types
+                f"the input has no 3-D cells hexsos checks (tetrahedra, pyramids, wedges, hexahedra, linear or "
+                f"quadratic, and voxels): it has {_cell_type_summary(types)}")
+        return kernel, elements, blocks, types
 
     def RequestData(self, request, inInfo, outInfo):
         self._result = None
@@ -567,15 +580,20 @@ class HexSOSCheckFilter(_HexSOSBase):
 
     def _execute(self, inp, outputs):
         out, poly_out = outputs
-        kernel, cell_ids, H, _, _ = self._prepare(inp, "certify")
+        kernel, elements, blocks, _ = self._prepare(inp, "certify")
         P = _points(inp)
+        cells = [(t, c) for t, c, _ in blocks]
+        cell_ids = np.concatenate([ids for _, _, ids in blocks])
         self.UpdateProgress(0.0)
-        result = kernel.check(P, H, method=self._method, relaxation=self._relaxation, progress=self._progress)
+        result = kernel.check(P, cells, method=self._method, relaxation=self._relaxation, progress=self._progress)
+        from hexsos_plugins.kernel import scaled_jacobian
+
+        result.extra["scaled_jacobian"] = scaled_jacobian(P, cells)
         out.ShallowCopy(inp)
         _add_result_cell_arrays(out, result, cell_ids)
         _add_summary(out, "hexsos_summary", result.summary())
 
-        poly_out.ShallowCopy(_argmin_polydata(P, H, cell_ids, result))
+        poly_out.ShallowCopy(_argmin_polydata(P, blocks, cell_ids, result, elements))
         self._result = result
         self.UpdateProgress(1.0)
 
@@ -678,10 +696,17 @@ class HexSOSRepairFilter(_HexSOSBase):
 
     def _execute(self, inp, outputs):
         (out,) = outputs
-        _, cell_ids, H, is_voxel, types = self._prepare(inp, "meshrepair")
+        _, _, blocks, types = self._prepare(inp, "meshrepair")
         from hexsos_plugins import repair
 
         P = _points(inp)
+        hex_blocks = [(c, ids) for t, c, ids in blocks if t == "hexahedron"]
+        if not hex_blocks:
+            raise ValueError(f"the input has no hexahedra to repair: it has {_cell_type_summary(types)}")
+        H = np.concatenate([c for c, _ in hex_blocks])
+        cell_ids = np.concatenate([ids for _, ids in hex_blocks])
+        is_voxel = types[cell_ids] == VTK_VOXEL
+        others = [(t, c) for t, c, _ in blocks if t != "hexahedron"]
         pinned = None
         if self._pin_non_hex:
             other = np.flatnonzero((types != VTK_HEXAHEDRON) & (types != VTK_VOXEL))
@@ -693,9 +718,10 @@ class HexSOSRepairFilter(_HexSOSBase):
                 idx = np.concatenate([np.arange(a, b) for a, b in zip(starts, stops)])
                 pinned[np.asarray(conn, dtype=np.int64)[idx]] = True
         self.UpdateProgress(0.0)
-        result = repair(P, H, rho=self._rho, margin=self._margin, pin_boundary=self._pin_boundary,
-                        max_iter=self._max_iterations, method=self._method, relaxation=self._relaxation,
-                        progress=self._progress, callback=self._abort, pinned=pinned)
+        result = repair(P, H, cells=others or None, rho=self._rho, margin=self._margin,
+                        pin_boundary=self._pin_boundary, max_iter=self._max_iterations, method="paper",
+                        kernel_method=self._method, relaxation=self._relaxation, progress=self._progress,
+                        callback=self._abort, pinned=pinned)
         out.ShallowCopy(inp)
         if is_voxel.any():
             _voxels_as_hexahedra(out, inp, types, cell_ids[is_voxel], H[is_voxel])
@@ -705,6 +731,7 @@ class HexSOSRepairFilter(_HexSOSBase):
         out.SetPoints(pts)
         out.GetPointData().AddArray(_vtk_array("hexsos_displacement", result.displacement))
         _add_result_cell_arrays(out, result.check, cell_ids)
+        _add_other_cells(out, result.extra.get("other_cells", []), [ids for t, _, ids in blocks if t != "hexahedron"])
         flag = vtkDataArray.CreateDataArray(6)  # VTK_INT
         flag.SetName("hexsos_repair_success")
         flag.InsertNextTuple1(1 if result.success else 0)
