@@ -16,10 +16,10 @@ Stage 1, untangling (Garanzha, Garanzha, Kaporin et al. 2021, *Foldover-free map
 
     Sample points, measured (``python -m comparison.bench_repair --samples``): corners for every cell plus the
     27 coefficients only for the hexes whose coefficients are not all positive. Corners alone cannot see a fold
-    inside a corner-valid hex (it stays folded: stage 2 could not start); the 27 coefficients on every hex cost
-    about 3x the time per evaluation for no gain in the untangled count; the kernel's argmin as an extra sample
-    needs a kernel call per iteration and, once the fold is gone, gives no margin, where positive coefficients
-    are a certificate.
+    inside a corner-valid hex (the fold stays: 0 iterations, not valid); the 27 coefficients on every hex untangle
+    the same stress tests in the same iterations but cost 2-3x per evaluation (32,000 hexes: 27 ms for the corners,
+    59-79 ms with every hex's coefficients); the kernel's argmin as an extra sample needs a kernel call per
+    iteration and, once the fold is gone, gives no margin, where positive coefficients are a certificate.
 
 Stage 2, quality
     minimize ``-sum_k log(SJ_k - t) - beta sum_p log(b_p / s^3)`` (SJ_k the normalized corner determinants whose
