@@ -171,7 +171,7 @@ class SOSSolution:
     """The outcome of one relaxation solve (values in det J units)."""
 
     status: str  # Clarabel's status, e.g. "Solved", "AlmostSolved", "MaxIterations"
-    value: float  # the relaxation's optimum (NaN unless a solution came back)
+    value: float  # the relaxation's optimum (NaN unless Clarabel reports Solved)
     argmin: np.ndarray  # (3,) first moments, clipped to [0, 1]
     recovery_ratio: float  # lambda_2 / lambda_1 of the moment matrix (0 for exact rank one)
     iterations: int
@@ -301,7 +301,7 @@ class SOSSolver:
         if np.isfinite(y0) and abs(y0) > 0:
             first = first / y0
         argmin = np.clip(np.nan_to_num(first, nan=0.5), 0.0, 1.0)
-        ok = status in ("Solved", "AlmostSolved")
+        ok = status == "Solved"  # AlmostSolved and the rest are reported, never used
         value = float(x[0]) * scale if ok else float("nan")
         return SOSSolution(status=status, value=value, argmin=argmin, recovery_ratio=ratio,
                            iterations=int(sol.iterations), seconds=seconds, moments=y, gram=gram,

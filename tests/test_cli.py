@@ -159,3 +159,25 @@ def test_progress_bar_on_request(tmp_path, capsys):
     assert "100.0%" in capsys.readouterr().err
     assert cli.main(["check", str(path)]) == 1  # not a terminal: no bar
     assert "%" not in capsys.readouterr().err
+
+
+def test_interrupt_exits_130_without_traceback_or_output(tmp_path):
+    """A real SIGINT while the kernel runs (sent from its first progress report, so no timing is involved):
+    exit 130, one line, no traceback, no half-written output."""
+    path = tmp_path / "mesh.vtu"
+    P, H = structured_grid(4)
+    meshio.write(path, meshio.Mesh(P, [("hexahedron", H)]))
+    out = tmp_path / "out.vtu"
+    script = (
+        "import os, signal, sys\n"
+        "from hexsos_plugins import certify, cli\n"
+        "real = certify.check\n"
+        "def check(*a, progress=None, **k):\n"
+        "    def report(done, total):\n"
+        "        os.kill(os.getpid(), signal.SIGINT)\n"
+        "    return real(*a, progress=report, **k)\n"
+        "certify.check = check\n"
+        f"sys.exit(cli.main(['check', {str(path)!r}, '-o', {str(out)!r}]))\n")
+    r = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 130, r.stderr
+    assert r.stderr.strip() == "hexsos: interrupted" and not out.exists()

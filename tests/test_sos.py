@@ -104,8 +104,13 @@ def test_certificate_rejects_a_tampered_lambda():
     S = sos.SOSSolver()
     r = S.solve(C, scale=np.abs(B).max())
     true_min, _, _ = dense_min(X[None])
+    honest = S.certified_lower(r, C, 128 * err[0])
     r.lam += 0.1  # claim a bound 0.1 higher: the residual must grow and cancel the claim
-    assert S.certified_lower(r, C, 128 * err[0]) <= true_min[0]
+    tampered = S.certified_lower(r, C, 128 * err[0])
+    assert tampered <= true_min[0]
+    # and the certificate still proves something: a bound that ignored lambda (or gave up, -inf) fails here
+    assert true_min[0] - 1e-6 * np.abs(B).max() < honest <= true_min[0]
+    assert abs(tampered - honest) < 1e-6 * np.abs(B).max()
 
 
 def test_non_solved_status_is_reported_not_used():
