@@ -379,26 +379,26 @@ def test_interrupted_repair_leaves_no_output_and_saves_a_checkpoint(tmp_path, si
 
     import meshio
 
+    from comparison.stress import graded_solid, stress
     from hexsos_plugins.cli_repair import checkpoint_path
 
-    P, H = structured_grid(2)
-    P = P.copy()
-    P[0] = [0.8, 0.8, 0.8]  # the tangle above: the repair keeps going until max-iter
+    P, H = graded_solid(10)
+    P = stress(P, H, frac=0.9, amp=1.0, seed=2)  # 4,000 hexes, most inverted: a repair of many seconds
     src = tmp_path / "tangle.vtu"
     meshio.write(src, meshio.Mesh(P, [("hexahedron", H)], point_data={"t": np.arange(len(P), dtype=float)}))
     before = src.read_bytes()
     out = tmp_path / "out.vtu"
     proc = subprocess.Popen([sys.executable, "-m", "hexsos_plugins", "repair", str(src), "-o", str(out),
-                             "--method", "paper", "--max-iter", "1000000", "--no-fidelity"], stdout=subprocess.PIPE,
+                             "--no-fidelity"], stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True)
-    time.sleep(4.0)  # well into the iterations (each takes milliseconds)
+    ckpt = checkpoint_path(str(out))
+    time.sleep(6.0)  # into the first outer steps (the whole repair takes tens of seconds here)
     assert proc.poll() is None
     proc.send_signal(getattr(signal, sig))
     stdout, stderr = proc.communicate(timeout=60)
     assert proc.returncode == 130, stderr
     assert "Traceback" not in stderr and not out.exists()  # no OUT, not even half of one
     assert not list(tmp_path.glob(".out*"))  # no temporary file left behind
-    ckpt = checkpoint_path(str(out))
     assert f"saved in {ckpt}" in stderr and "resume with: hexsos repair" in stderr
     m = meshio.read(ckpt)
     assert np.array_equal(m.cells_dict["hexahedron"], H) and "t" in m.point_data
@@ -407,7 +407,7 @@ def test_interrupted_repair_leaves_no_output_and_saves_a_checkpoint(tmp_path, si
     assert src.read_bytes() == before
     # resuming from the checkpoint works like any repair
     r = subprocess.run([sys.executable, "-m", "hexsos_plugins", "repair", ckpt, "-o", str(out), "--max-iter", "2",
-                        "--no-fidelity", "--json"], capture_output=True, text=True, timeout=120)
+                        "--no-fidelity", "--json", "--method", "paper"], capture_output=True, text=True, timeout=300)
     assert r.returncode in (0, 1) and out.exists()
 
 
