@@ -498,8 +498,10 @@ def untangle(prob: Problem, *, max_outer=60, max_iter=300, deadline=None, on_ste
 
         def cb(intermediate_result):
             state["n"] = state.get("n", 0) + 1
-            if on_step is not None and state["n"] % 25 == 0:  # progress, checkpoints, a chance to stop
+            if on_step is not None and (state["n"] == 1 or state["n"] % 25 == 0):  # progress, checkpoints, stop
                 on_step("untangle", prob.full(intermediate_result.x))
+            if deadline is not None and time.perf_counter() > deadline:
+                raise StopIteration
             # stop the inner solve once the current point is untangled (checked on the coordinates)
             if prob._last_dmin > 0:
                 V = prob.full(intermediate_result.x)
