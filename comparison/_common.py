@@ -290,7 +290,8 @@ def cached_check(X, out, jobs: int = 1, *, desc: str = "", **kw):
     h.update(json.dumps(kw, sort_keys=True).encode())
     # a changed kernel must not reuse old results: key on the kernel's source files too
     src = Path(hexsos_plugins.__file__).parent
-    for f in ("certify.py", "sos.py", "bernstein.py", "hexahedron.py"):
+    for f in ("certify.py", "sos.py", "kernel.py", "_kernel_src.py", "exact.py", "jacobian.py", "elements.py",
+              "hexahedron.py"):
         if (src / f).exists():
             h.update((src / f).read_bytes())
     path = Path(out) / ".cache" / f"check-{h.hexdigest()[:16]}.npz"

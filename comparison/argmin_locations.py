@@ -47,12 +47,36 @@ def classify(argmin, tol: float = TOL) -> np.ndarray:
     return 3 - nb
 
 
+def _split(F, axis):
+    """Halve degree-2 Bernstein patches F (..., 3, 3) along ``axis`` (1 or 2 of the last two): de Casteljau at 1/2."""
+    b0, b1, b2 = (np.take(F, i, axis=axis) for i in range(3))
+    m01, m12 = 0.5 * (b0 + b1), 0.5 * (b1 + b2)
+    mid = 0.5 * (m01 + m12)
+    left = np.stack([b0, m01, mid], axis=axis)
+    right = np.stack([mid, m12, b2], axis=axis)
+    return np.concatenate([left, right], axis=-3)
+
+
+def _face_bracket(F, err, depth):
+    """Bracket min of the patches F (M, 3, 3) by uniform subdivision to 4^depth boxes. Each halving rounds
+    every coefficient by at most 2 u max|F| (two halvings of sums), so the bound subtracts 4 u max|F| per level
+    and both directions."""
+    scale = np.abs(F).reshape(F.shape[0], -1).max(axis=1)
+    boxes = F[:, None]
+    for _ in range(depth):
+        boxes = _split(_split(boxes, -2), -1)
+    lower = boxes.reshape(F.shape[0], -1).min(axis=1) - err - depth * 2 * 4 * 2.0**-53 * scale
+    upper = boxes[..., [0, 0, 2, 2], [0, 2, 0, 2]].reshape(F.shape[0], -1).min(axis=1)  # corner values
+    return lower, upper
+
+
 def face_brackets(X, *, max_boxes: int = 64):
     """Certified brackets of min det J on each of the six faces u=0, u=1, v=0, v=1, w=0, w=1.
 
-    Returns (lower, upper), each (M, 6): ``lower`` a proven lower bound, ``upper`` a value of det J on the face.
+    det J restricted to a face is a degree-(2, 2) Bernstein patch (a slice of the hex's 27 coefficients);
+    it is subdivided uniformly into about ``max_boxes`` boxes. Returns (lower, upper), each (M, 6): ``lower``
+    a proven lower bound, ``upper`` a value of det J on the face.
     """
-    from hexsos_plugins.bernstein import bracket
     from hexsos_plugins.hexahedron import det_bernstein
 
     X = np.asarray(X, float).reshape(-1, 8, 3)
@@ -61,15 +85,12 @@ def face_brackets(X, *, max_boxes: int = 64):
     if M == 0:
         return lower, upper
     B, err = det_bernstein(X)
-    Bc = B.reshape(3, 3, 3, M)
+    Bc = np.moveaxis(B.reshape(3, 3, 3, M), -1, 0)  # (M, a, b, c)
+    depth = max(0, int(np.log2(max(max_boxes, 1))) // 2)
     for ax in range(3):
         for j, side in enumerate((0, 2)):
-            F = np.take(Bc, side, axis=ax)  # (3, 3, M): the face polynomial's Bernstein coefficients
-            B3 = np.ascontiguousarray(np.broadcast_to(F[None], (3, 3, 3, M)).reshape(27, M))
-            # constant along the first axis, so its minimum is the face minimum; every box has copies along
-            # that axis that cannot be pruned, so a tight bound needs a generous box cap (used on few hexes)
-            br = bracket(B3, err, max_boxes=max_boxes, max_depth=40)
-            lower[:, 2 * ax + j], upper[:, 2 * ax + j] = br.lower, br.upper
+            F = np.ascontiguousarray(np.take(Bc, side, axis=ax + 1))  # (M, 3, 3): the face's coefficients
+            lower[:, 2 * ax + j], upper[:, 2 * ax + j] = _face_bracket(F, err, depth)
     return lower, upper
 
 

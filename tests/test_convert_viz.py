@@ -18,10 +18,13 @@ def demo():
     return P, H, info, hs.check(P, H)
 
 
+TETS = np.array([[0, 1, 2, 40], [3, 4, 5, 41]])
+
+
 @pytest.fixture
 def mixed_file(tmp_path, demo):
     P, H, _, _ = demo
-    tets = np.array([[0, 1, 2, 40], [3, 4, 5, 41]])
+    tets = TETS
     quads = H[:6, :4]
     mesh = meshio.Mesh(P, [("hexahedron", H), ("tetra", tets), ("quad", quads)],
                        point_data={"temperature": np.linspace(0, 1, len(P)), "velocity": np.ones((len(P), 3))},
@@ -36,10 +39,12 @@ def mixed_file(tmp_path, demo):
 @pytest.mark.parametrize("ext", [".vtu", ".vtk", ".msh", ".mesh"])
 def test_convert_round_trip_keeps_everything(mixed_file, tmp_path, ext, demo, capsys):
     P, H, _, ref = demo
+    tets = hs.check(P, [("tetra", TETS)])  # 3-D cells of every type are checked; 2-D cells are not
     out = tmp_path / f"out{ext}"
     assert cli.main(["convert", str(mixed_file), str(out)]) == 0
     captured = capsys.readouterr()
-    assert f"{len(H)} hexes, {ref.counts()['invalid']} invalid" in captured.out
+    c = hs.check(P, [("hexahedron", H), ("tetra", TETS)]).counts()
+    assert f"{len(H) + 2} cells, {c['invalid']} invalid" in captured.out and f"{c['undecided']} undecided" in captured.out
     m = read_meshio(out)
     types = [b.type for b in m.cells]
     assert {"hexahedron", "tetra", "quad"} <= set(types)
@@ -56,9 +61,11 @@ def test_convert_round_trip_keeps_everything(mixed_file, tmp_path, ext, demo, ca
     assert np.array_equal(m.cell_data["hexsos_status"][hexblock].astype(int), ref.status)
     assert np.allclose(m.cell_data["hexsos_min_det"][hexblock], ref.min_det)
     assert np.allclose(np.asarray(m.cell_data["hexsos_argmin"][hexblock]).reshape(-1, 3), ref.argmin)
-    tet = types.index("tetra")
-    assert np.all(np.isnan(m.cell_data["hexsos_min_det"][tet]))  # non-hex cells: NaN
-    assert np.all(np.asarray(m.cell_data["hexsos_status"][tet]) == -2)
+    tet, quad = types.index("tetra"), types.index("quad")
+    assert np.array_equal(np.asarray(m.cell_data["hexsos_status"][tet]).astype(int), tets.status)
+    assert np.allclose(m.cell_data["hexsos_min_det"][tet], tets.min_det)
+    assert np.all(np.isnan(m.cell_data["hexsos_min_det"][quad]))  # 2-D cells: NaN and -2
+    assert np.all(np.asarray(m.cell_data["hexsos_status"][quad]) == -2)
     assert np.array_equal(np.asarray(m.cell_data["gmsh:physical"][tet]).astype(int), [2, 2])
     assert "solid" in m.field_data
 

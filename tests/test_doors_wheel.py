@@ -304,19 +304,19 @@ def test_other_formats_are_converted_and_a_mesh_that_cannot_be_checked_is_one_er
     grid = tmp_path / "grid.vtk"  # not a format ParaView is handed: hexsos reads it and passes a .vtu on
     hs.write(meshio.Mesh(P, [("hexahedron", H)]), str(grid))
     expected = hs.check(P, H).counts()
-    tets = tmp_path / "tets.vtu"
-    meshio.Mesh(np.eye(4)[:, :3], [("tetra", np.array([[0, 1, 2, 3]]))]).write(str(tets))
+    tets = tmp_path / "quads.vtu"  # 2-D cells only: nothing to check
+    meshio.Mesh(np.eye(4)[:, :3], [("quad", np.array([[0, 1, 2, 3]]))]).write(str(tets))
     fingerprint = {p: p.read_bytes() for p in (grid, tets)}
     proc = run([wheel.hexsos, "paraview", grid, tets, "--exit-after", "--json"], tmp_path,
                wheel.env(tmp_path / "config", DISPLAY=display))
     assert proc.returncode == 2, proc.stdout + proc.stderr
     errors = [line for line in proc.stderr.splitlines() if line.startswith("hexsos")]
-    assert len(errors) == 1 and errors[0].startswith("hexsos: error: tets.vtu: HexSOS Check failed: "), proc.stderr
-    assert "no hexahedra" in errors[0] and "Traceback" not in proc.stderr
+    assert len(errors) == 1 and errors[0].startswith("hexsos: error: quads.vtu: HexSOS Check failed: "), proc.stderr
+    assert "no 3-D cells" in errors[0] and "Traceback" not in proc.stderr
     report = _report(proc)
     assert list(report["converted"]) == [str(grid)]
     m, t = report["meshes"]
     assert m["file"] == "grid.vtk" and (m["valid"], m["invalid"], m["undecided"]) == (
         expected["valid"], expected["invalid"], expected["undecided"]) and m["invalid"] > 0
-    assert t == {"file": "tets.vtu", "error": errors[0][len("hexsos: error: "):]}
+    assert t == {"file": "quads.vtu", "error": errors[0][len("hexsos: error: "):]}
     assert {p: p.read_bytes() for p in (grid, tets)} == fingerprint  # inputs untouched
