@@ -1,4 +1,4 @@
-"""The Gmsh door of hexsos: check and repair the hexahedra of a Gmsh model, in scripts or in the Gmsh GUI.
+"""The Gmsh door of hexsos: check every 3-D element of a Gmsh model and repair it, in scripts or in the Gmsh GUI.
 
 * Scripts: :func:`check_model`, :func:`repair_model`, :func:`post_views` work on the current Gmsh model
   (``gmsh.initialize()`` first); see :mod:`gmsh_plugin.model`.
@@ -15,11 +15,13 @@ from .model import (
     VIEW_MIN_DET,
     VIEW_NAMES,
     VIEW_STATUS,
+    GmshCells,
     GmshHexes,
     GmshModelError,
     add_hex_mesh,
     check_model,
     hexsos_views,
+    model_cells,
     model_hexes,
     post_displacement,
     post_views,
@@ -35,12 +37,14 @@ __all__ = [
     "repair_model",
     "post_views",
     "post_displacement",
+    "model_cells",
     "model_hexes",
     "add_hex_mesh",
     "hexsos_views",
     "remove_views",
     "write_views",
     "world_points",
+    "GmshCells",
     "GmshHexes",
     "GmshModelError",
     "HEX8",

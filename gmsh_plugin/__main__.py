@@ -24,8 +24,9 @@ from hexsos_plugins.errors import HexsosError, MeshReadError, NoHexahedraError
 __all__ = ["main", "build_parser", "add_arguments", "run"]
 
 PROG = "hexsos-gmsh"
-DESCRIPTION = ("Open a mesh in the Gmsh GUI with the hexsos panel: check every 8-node hexahedron (exact min det J, "
-               "where it occurs, a proven verdict) and repair the mesh.")
+DESCRIPTION = ("Open a mesh in the Gmsh GUI with the hexsos panel: check every 3-D element (exact min det J, where "
+               "it occurs, a proven verdict; tetrahedra, pyramids, prisms, hexahedra, linear and quadratic) and "
+               "repair the mesh.")
 
 
 class _Parser(argparse.ArgumentParser):
@@ -53,7 +54,16 @@ def add_arguments(p) -> None:
                         ".msh holds the mesh and the element data, the argmin points go to FILE-argmin.pos")
     p.add_argument("--method", choices=("auto", "sos"), default="auto", help="check method (default auto)")
     p.add_argument("--relaxation", choices=("quad2", "paper"), default="quad2", help="SOS relaxation (default quad2)")
-    p.add_argument("--rho", type=float, default=200.0, help="repair: averaging weight (default 200)")
+    p.add_argument("--repair-method", choices=("optimize", "paper"), default="optimize",
+                   help="repair: optimize (untangle, raise the minimum scaled Jacobian, certify; default) or paper "
+                        "(the paper's Algorithms 1 and 2)")
+    p.add_argument("--boundary", choices=("slide", "fixed", "free"), default=None,
+                   help="repair: boundary nodes slide on the input's surface (default for optimize), stay fixed, "
+                        "or move freely (default for paper)")
+    p.add_argument("--min-sj", type=float, default=None, metavar="TARGET",
+                   help="repair: stop raising the quality once every cell reaches this scaled Jacobian "
+                        "(default: as high as it goes)")
+    p.add_argument("--rho", type=float, default=200.0, help="repair (paper): averaging weight (default 200)")
     p.add_argument("--margin", type=float, default=None, help="repair: relative det J margin (default: repair's)")
     p.add_argument("--pin-boundary", action="store_true", help="repair: keep boundary nodes fixed")
     p.add_argument("--max-iter", type=int, default=100, help="repair: iterations (default 100)")
@@ -99,10 +109,10 @@ def _open(gmsh, args):
 def _print_result(label, result, out=None):
     out = out or sys.stdout
     hx = result.extra.get("gmsh")
-    print(f"{label}: {hx.describe() if hx is not None else f'{len(result)} hexahedra'}", file=out)
+    print(f"{label}: {hx.describe() if hx is not None else f'{len(result)} elements'}", file=out)
     print(result.summary(), file=out)
     if hx is not None and len(result):
-        print(f"worst hex  Gmsh element {int(hx.element_tags[result.worst])}", file=out)
+        print(f"worst      Gmsh element {int(hx.element_tags[result.worst])}", file=out)
 
 
 def _headless(gmsh, args, label) -> int:
@@ -111,7 +121,9 @@ def _headless(gmsh, args, label) -> int:
     if args.screenshot:
         sys.stderr.write(f"{PROG}: warning: no display: no screenshot\n")
     if args.auto_action == "repair":
-        res = repair_model(rho=args.rho, margin=args.margin, pin_boundary=args.pin_boundary, max_iter=args.max_iter,
+        res = repair_model(repair_method=args.repair_method, boundary=args.boundary, min_sj=args.min_sj,
+                           rho=args.rho, margin=args.margin, pin_boundary=args.pin_boundary,
+                           max_iter=args.max_iter if args.repair_method == "paper" or args.max_iter < 100 else None,
                            method=args.method, relaxation=args.relaxation)
         result = res.extra["model_check"]
         print(res.summary())
@@ -132,14 +144,16 @@ def _headless(gmsh, args, label) -> int:
 
 def _gui(gmsh, args, label) -> int:
     from . import panel
-    from .model import model_hexes, write_views
+    from .model import model_cells, write_views
 
     margin = "auto" if args.margin is None else repr(args.margin)
+    boundary = args.boundary or ("slide" if args.repair_method == "optimize" else "free")
     panel.define_parameters(method=args.method, relaxation=args.relaxation, rho=args.rho, margin=margin,
-                            pin=int(args.pin_boundary), max_iter=args.max_iter)
+                            pin=int(args.pin_boundary), max_iter=args.max_iter, repair_method=args.repair_method,
+                            boundary=boundary, min_sj="auto" if args.min_sj is None else repr(args.min_sj))
     try:
-        hx = model_hexes()
-        gmsh.onelab.setString(panel.R_MESSAGE, [f"{label}: {len(hx)} hexahedra; press Check"])
+        hx = model_cells()
+        gmsh.onelab.setString(panel.R_MESSAGE, [f"{label}: {hx.describe()}; press Check"])
     except NoHexahedraError as exc:  # the user may still mesh the model in the GUI
         gmsh.onelab.setString(panel.R_MESSAGE, [f"{exc}; mesh the model (3D, recombined), then press Check"])
     if args.screenshot:  # an oblique view shows the hexes in depth (Gmsh opens looking down -z)

@@ -1,4 +1,4 @@
-"""Check and repair the hexahedra of the current Gmsh model, and show the results as Gmsh views.
+"""Check and repair the 3-D elements of the current Gmsh model, and show the results as Gmsh views.
 
 For people who script Gmsh::
 
@@ -12,20 +12,22 @@ For people who script Gmsh::
     if result.counts()["invalid"]:
         repair_model(margin=1e-3)   # moves the nodes of the Gmsh model, re-checks, re-posts the views
 
-Only 8-node hexahedra (Gmsh element type 5, whose node order is VTK's, see
-:mod:`hexsos_plugins.hexahedron`) are trilinear; higher-order hexahedra (types 12, 17, 92, 93, ...) are
-reported as skipped. Every entity of the current model is read; node tags may be any positive integers
-(sparse, unsorted): they are mapped to a dense array and back.
+Every 3-D element type of :mod:`hexsos_plugins.elements` is checked: tetrahedra, pyramids, prisms and
+hexahedra, linear and quadratic (Gmsh types 4, 11, 7, 6, 18, 13, 5, 17, 12), their nodes reordered from
+Gmsh's numbering to VTK's; other 3-D types (13- and 14-node pyramids, orders above 2) are counted as not
+checked. Every entity of the current model is read; node tags may be any positive integers (sparse,
+unsorted): they are mapped to a dense array and back.
 
-det J is measured on the parameter cube [0, 1]^3: Gmsh's own ``minDetJac`` (reference cube [-1, 1]^3)
-is this module's value / 8.
+det J is measured on VTK's reference elements (hexahedra: the parameter cube [0, 1]^3): Gmsh's own
+``minDetJac`` is this module's value times :attr:`hexsos_plugins.elements.Element.gmsh_factor` (1/8 for
+hexahedra, whose Gmsh reference cube is [-1, 1]^3; 1/2 for prisms; 1 for tetrahedra; 1/4 for pyramids).
 
 Views posted (re-posted in place on every check, so repeated checks do not pile up views):
 
-* ``"hexsos: min det J"``: ElementData, the exact minimum of det J of every hex.
+* ``"hexsos: min det J"``: ElementData, the exact minimum of det J of every checked element.
 * ``"hexsos: status"``: ElementData, 1 valid, 0 invalid, -1 undecided; drawn only where not valid.
-* ``"hexsos: where invalid hexes fold"``: list data, one scalar point (``SP``) per invalid hex at x(u*),
-  the world position of its argmin, valued by its min det J.
+* ``"hexsos: where invalid elements fold"``: list data, one scalar point (``SP``) per invalid element at
+  x(u*), the world position of its argmin, valued by its min det J.
 * ``"hexsos: displacement"`` (after a repair): NodeData, the vector each node moved.
 """
 
@@ -39,6 +41,7 @@ from hexsos_plugins.errors import DependencyError, HexsosError, NoHexahedraError
 
 __all__ = [
     "GmshModelError",
+    "GmshCells",
     "GmshHexes",
     "VIEW_MIN_DET",
     "VIEW_STATUS",
@@ -46,6 +49,7 @@ __all__ = [
     "VIEW_DISPLACEMENT",
     "VIEW_NAMES",
     "HEX8",
+    "model_cells",
     "model_hexes",
     "add_hex_mesh",
     "check_model",
@@ -63,7 +67,7 @@ HEX8 = 5
 
 VIEW_MIN_DET = "hexsos: min det J"
 VIEW_STATUS = "hexsos: status"
-VIEW_ARGMIN = "hexsos: where invalid hexes fold"
+VIEW_ARGMIN = "hexsos: where invalid elements fold"
 VIEW_DISPLACEMENT = "hexsos: displacement"
 #: Result keys of :func:`post_views` / :func:`hexsos_views` and the view names they stand for.
 VIEW_NAMES = {"min_det": VIEW_MIN_DET, "status": VIEW_STATUS, "argmin": VIEW_ARGMIN,
@@ -85,78 +89,107 @@ def _gmsh():
 
 
 @dataclass
-class GmshHexes:
-    """The 8-node hexahedra of a Gmsh model as arrays, with the tags to map results back.
+class GmshCells:
+    """The 3-D elements of a Gmsh model as arrays, with the tags to map results back.
 
     Attributes
     ----------
-    points : (N, 3) float64, the coordinates of the nodes the hexes use (only those)
-    hexes : (M, 8) int64, rows of ``points`` in VTK (= Gmsh type 5) order
+    points : (N, 3) float64, the coordinates of the nodes the 3-D elements use (only those)
+    cells : list of (type, conn): one block per element type hexsos checks (meshio names, e.g. ``"hexahedron"``,
+        ``"hexahedron20"``, ``"tetra"``, ``"wedge"``), ``conn`` (M_t, n_t) rows of ``points`` in VTK order
     node_tags : (N,) uint64, the Gmsh tag of each row of ``points`` (sorted ascending)
-    element_tags : (M,) uint64, the Gmsh tag of each hex
+    element_tags : (M,) uint64, the Gmsh tag of each checked element, blocks in the order of ``cells``
     model : str, the name of the Gmsh model they come from
-    skipped : dict, element type name -> count of higher-order hexahedra that were not checked
-    other : dict, element type name -> count of the other 3D elements (tetrahedra, prisms, ...), ignored
+    skipped : dict, Gmsh element type name -> count of 3-D elements of types hexsos does not check (e.g.
+        13- and 14-node pyramids); their nodes are in ``points`` and flagged in ``skipped_nodes``
+    skipped_nodes : (N,) bool, nodes of skipped elements (a repair keeps them fixed)
     """
 
     points: np.ndarray
-    hexes: np.ndarray
+    cells: list
     node_tags: np.ndarray
     element_tags: np.ndarray
     model: str
     skipped: dict = field(default_factory=dict)
-    other: dict = field(default_factory=dict)
+    skipped_nodes: np.ndarray = None
 
     def __len__(self) -> int:
-        return int(self.hexes.shape[0])
+        return int(sum(c.shape[0] for _, c in self.cells))
+
+    @property
+    def hexes(self) -> np.ndarray:
+        """(M, 8) the 8-node hexahedra (VTK = Gmsh type 5 order); (0, 8) when the model has none."""
+        blocks = [c for t, c in self.cells if t == "hexahedron"]
+        return blocks[0] if blocks else np.zeros((0, 8), dtype=np.int64)
+
+    @property
+    def hex_element_tags(self) -> np.ndarray:
+        """The Gmsh tags of :attr:`hexes`."""
+        off = 0
+        for t, c in self.cells:
+            if t == "hexahedron":
+                return self.element_tags[off:off + c.shape[0]]
+            off += c.shape[0]
+        return np.zeros(0, dtype=np.uint64)
+
+    def counts(self) -> dict:
+        """Elements checked per type (meshio names)."""
+        return {t: int(c.shape[0]) for t, c in self.cells}
 
     def describe(self) -> str:
-        """One line: how many hexahedra and nodes, and what was skipped."""
-        s = f"{len(self)} hexahedra, {self.points.shape[0]} nodes (Gmsh model '{self.model}')"
+        """One line: how many elements of which types and nodes, and what was not checked."""
+        s = (f"{len(self)} elements (" + ", ".join(f"{k} {t}" for t, k in self.counts().items()) +
+             f"), {self.points.shape[0]} nodes (Gmsh model '{self.model}')")
         if self.skipped:
-            s += "; skipped (higher order, not trilinear): " + ", ".join(f"{k} {name}" for name, k in
-                                                                           self.skipped.items())
-        if self.other:
-            s += "; ignored: " + ", ".join(f"{k} {name}" for name, k in self.other.items())
+            s += "; not checked (no exact element): " + ", ".join(f"{k} {name}" for name, k in self.skipped.items())
         return s
 
 
-def model_hexes() -> GmshHexes:
-    """Read the 8-node hexahedra of every entity of the current Gmsh model.
+#: The name of :class:`GmshCells` in earlier versions (hexahedra only).
+GmshHexes = GmshCells
 
-    Returns
-    -------
-    GmshHexes
-        points / hexes in dense numbering plus the node and element tags to map back.
+
+def model_cells() -> GmshCells:
+    """Read every 3-D element of every entity of the current Gmsh model.
+
+    Every type of :data:`hexsos_plugins.elements.ELEMENTS` (tetrahedra, pyramids, prisms, hexahedra, linear
+    and quadratic, complete and incomplete) is read with its nodes reordered from Gmsh's numbering to VTK's;
+    3-D elements of other types (13- and 14-node pyramids, higher orders) are counted in ``skipped``.
 
     Raises
     ------
-    NoHexahedraError
-        The model holds no 8-node hexahedron (the message names the higher-order ones skipped).
+    NoCellsError
+        The model holds no 3-D element hexsos checks (the message says what it holds).
     GmshModelError
-        Gmsh is not initialized, or a hex refers to a node the model does not hold.
+        Gmsh is not initialized, or an element refers to a node the model does not hold.
     """
+    from hexsos_plugins.elements import ELEMENTS
+    from hexsos_plugins.errors import NoCellsError
+
     gmsh = _gmsh()
-    skipped, other = {}, {}
+    by_gmsh = {el.gmsh_type: el for el in ELEMENTS.values()}
+    raw, skipped, skipped_raw = [], {}, []
     for etype in gmsh.model.mesh.getElementTypes(3):
-        if etype == HEX8:
+        etags, enodes = gmsh.model.mesh.getElementsByType(etype)
+        el = by_gmsh.get(int(etype))
+        enodes = np.asarray(enodes, dtype=np.uint64)
+        if el is None:
+            name = gmsh.model.mesh.getElementProperties(etype)[0]
+            skipped[name] = len(etags)
+            skipped_raw.append(enodes)
             continue
-        name = gmsh.model.mesh.getElementProperties(etype)[0]
-        count = len(gmsh.model.mesh.getElementsByType(etype)[0])
-        (skipped if name.lower().startswith("hexahedron") else other)[name] = count
-    etags, enodes = gmsh.model.mesh.getElementsByType(HEX8)
+        conn = enodes.reshape(-1, el.n_nodes)[:, list(el.gmsh_to_vtk)]
+        raw.append((el.name, np.asarray(etags, dtype=np.uint64), conn))
     model = gmsh.model.getCurrent()
-    if len(etags) == 0:
-        msg = f"the Gmsh model '{model}' holds no 8-node hexahedra (element type 5)"
+    if not raw:
+        msg = f"the Gmsh model '{model}' holds no 3-D elements hexsos checks"
         if skipped:
-            msg += ("; it holds higher-order hexahedra (" + ", ".join(f"{k} {name}" for name, k in skipped.items())
-                    + "), which are not trilinear and are not checked")
-        elif other:
-            msg += "; it holds " + ", ".join(f"{k} {name}" for name, k in other.items())
-        raise NoHexahedraError(msg)
-    etags = np.asarray(etags, dtype=np.uint64)
-    enodes = np.asarray(enodes, dtype=np.uint64).reshape(-1, 8)
-    used, inverse = np.unique(enodes, return_inverse=True)
+            msg += "; it holds " + ", ".join(f"{k} {name}" for name, k in skipped.items())
+        else:
+            dims = [d for d in (2, 1, 0) if len(gmsh.model.mesh.getElementTypes(d))]
+            msg += f" (its elements are of dimension {', '.join(map(str, dims))})" if dims else " (it has no mesh)"
+        raise NoCellsError(msg + ": mesh it in 3-D first")
+    used = np.unique(np.concatenate([c.ravel() for _, _, c in raw] + skipped_raw))
     all_tags, coords, _ = gmsh.model.mesh.getNodes(returnParametricCoord=False)
     all_tags = np.asarray(all_tags, dtype=np.uint64)
     coords = np.asarray(coords, dtype=np.float64).reshape(-1, 3)
@@ -167,11 +200,29 @@ def model_hexes() -> GmshHexes:
     found = (pos < sorted_tags.size) & (sorted_tags[pos_c] == used) if sorted_tags.size else np.zeros(used.size, bool)
     if not found.all():
         missing = used[~found][:5].tolist()
-        raise GmshModelError(f"hexahedra of model '{model}' refer to node tags the model does not hold: {missing}")
+        raise GmshModelError(f"3-D elements of model '{model}' refer to node tags the model does not hold: {missing}")
     points = coords[order[pos_c]]
-    hexes = inverse.reshape(-1, 8).astype(np.int64)
-    return GmshHexes(points=points, hexes=hexes, node_tags=used, element_tags=etags, model=model,
-                     skipped=skipped, other=other)
+    cells = [(name, np.searchsorted(used, conn).astype(np.int64)) for name, _, conn in raw]
+    element_tags = np.concatenate([t for _, t, _ in raw])
+    skipped_nodes = np.zeros(used.size, dtype=bool)
+    for nodes in skipped_raw:
+        skipped_nodes[np.searchsorted(used, nodes)] = True
+    return GmshCells(points=points, cells=cells, node_tags=used, element_tags=element_tags, model=model,
+                     skipped=skipped, skipped_nodes=skipped_nodes)
+
+
+def model_hexes() -> GmshCells:
+    """The 8-node hexahedra of the current Gmsh model only (see :func:`model_cells`); raises NoHexahedraError
+    when it has none."""
+    mc = model_cells()
+    H = mc.hexes
+    if H.shape[0] == 0:
+        raise NoHexahedraError(f"the Gmsh model '{mc.model}' holds no 8-node hexahedra (element type 5); it holds "
+                               + ", ".join(f"{k} {t}" for t, k in mc.counts().items()))
+    used, inverse = np.unique(H, return_inverse=True)
+    return GmshCells(points=mc.points[used], cells=[("hexahedron", inverse.reshape(-1, 8).astype(np.int64))],
+                     node_tags=mc.node_tags[used], element_tags=mc.hex_element_tags, model=mc.model,
+                     skipped={}, skipped_nodes=np.zeros(used.size, dtype=bool))
 
 
 def add_hex_mesh(points, hexes, *, model: str | None = "hexsos", node_tags=None, element_tags=None):
@@ -208,14 +259,21 @@ def add_hex_mesh(points, hexes, *, model: str | None = "hexsos", node_tags=None,
     return ntags, np.asarray(gmsh.model.mesh.getElementsByType(HEX8, vol)[0], dtype=np.uint64)
 
 
-def world_points(points, hexes, uvw) -> np.ndarray:
-    """x(u, v, w) of the trilinear map of each hex: (K, 3) world points of (K, 3) parameter points.
+def world_points(points, cells, pcoords) -> np.ndarray:
+    """x(pcoords) of each cell: (K, 3) world points of (K, 3) parametric points (VTK's reference elements).
 
-    ``hexes`` (K, 8) are the hexes the parameter points belong to (VTK order, parameter cube [0, 1]^3).
+    ``cells`` is (K, 8) hexahedra (VTK order, parameter cube [0, 1]^3) or a list of (type, conn) blocks whose
+    rows, concatenated, are the K cells the points belong to.
     """
-    from hexsos_plugins.hexahedron import map_points
+    from hexsos_plugins.elements import world_points as _world
 
-    return map_points(np.asarray(points, dtype=np.float64)[np.asarray(hexes, dtype=np.int64)], uvw)
+    return _world(np.asarray(points, dtype=np.float64), _as_cells(cells), np.asarray(pcoords, dtype=np.float64))
+
+
+def _as_cells(cells):
+    if isinstance(cells, (list, tuple)):
+        return [(t, np.asarray(c, dtype=np.int64)) for t, c in cells]
+    return [("hexahedron", np.asarray(cells, dtype=np.int64).reshape(-1, 8))]
 
 
 # --- views ---------------------------------------------------------------------------------------------
@@ -250,27 +308,27 @@ def _new_view(key: str, existing: dict) -> int:
     return int(gmsh.view.add(VIEW_NAMES[key]))
 
 
-def _gmsh_data(result, element_tags, points, hexes, model):
+def _gmsh_data(result, element_tags, points, cells, model):
     info = result.extra.get("gmsh") if isinstance(getattr(result, "extra", None), dict) else None
     if element_tags is None:
         if info is None:
             raise GmshModelError("post_views: the result does not come from check_model; pass element_tags, "
-                                 "points and hexes")
+                                 "points and cells")
         element_tags = info.element_tags
-    if points is None or hexes is None:
+    if points is None or cells is None:
         if info is None:
-            raise GmshModelError("post_views: pass points and hexes (needed to place the argmin points)")
-        points, hexes = info.points, info.hexes
+            raise GmshModelError("post_views: pass points and cells (needed to place the argmin points)")
+        points, cells = info.points, info.cells
     if model is None:
         model = info.model if info is not None else _gmsh().model.getCurrent()
     element_tags = np.asarray(element_tags, dtype=np.uint64)
     if element_tags.shape != (len(result),):
-        raise GmshModelError(f"post_views: expected {len(result)} element tags (one per hex), "
+        raise GmshModelError(f"post_views: expected {len(result)} element tags (one per checked element), "
                              f"found shape {element_tags.shape}")
-    return element_tags, np.asarray(points, np.float64), np.asarray(hexes, np.int64), model
+    return element_tags, np.asarray(points, np.float64), _as_cells(cells), model
 
 
-def post_views(result, element_tags=None, points=None, hexes=None, *, model: str | None = None) -> dict:
+def post_views(result, element_tags=None, points=None, cells=None, *, model: str | None = None) -> dict:
     """Post the results of a check as Gmsh views (replacing earlier hexsos views, keeping their tags).
 
     Parameters
@@ -279,9 +337,9 @@ def post_views(result, element_tags=None, points=None, hexes=None, *, model: str
         From :func:`check_model` (which carries the tags and arrays), or from ``hexsos_plugins.check``
         on arrays that match the Gmsh model (then pass the three arrays below).
     element_tags : array_like of int, shape (M,), optional
-        Gmsh tag of each hex of the result.
+        Gmsh tag of each element of the result.
     points : array_like, shape (N, 3), optional
-    hexes : array_like of int, shape (M, 8), optional
+    cells : (M, 8) hexahedra or a list of (type, conn) blocks, optional
         The arrays the result was computed on (to place the argmin points in world coordinates).
     model : str, optional, keyword-only
         The Gmsh model the element tags belong to. Default: the result's, else the current model.
@@ -289,11 +347,12 @@ def post_views(result, element_tags=None, points=None, hexes=None, *, model: str
     Returns
     -------
     dict
-        View tags by key: ``"min_det"``, ``"status"`` (ElementData views) and ``"argmin"`` (list data: one
-        scalar point per invalid hex at the world position of its argmin, valued by its min det J).
+        View tags by key: ``"min_det"``, ``"status"`` (ElementData views over every checked element) and
+        ``"argmin"`` (list data: one scalar point per invalid element at the world position of its argmin,
+        valued by its min det J).
     """
     gmsh = _gmsh()
-    element_tags, points, hexes, model = _gmsh_data(result, element_tags, points, hexes, model)
+    element_tags, points, cells, model = _gmsh_data(result, element_tags, points, cells, model)
     existing = hexsos_views()
     views = {}
 
@@ -301,13 +360,13 @@ def post_views(result, element_tags=None, points=None, hexes=None, *, model: str
     gmsh.view.addHomogeneousModelData(tag, 0, model, "ElementData", element_tags,
                                       np.ascontiguousarray(result.min_det, dtype=np.float64), numComponents=1)
     # a diverging scale centred on 0 would hide the magnitudes; keep Gmsh's default rainbow, but hidden:
-    # the status view below shows the invalid hexes, which the valid ones around them would cover
+    # the status view below shows the invalid elements, which the valid ones around them would cover
     gmsh.view.option.setNumber(tag, "Visible", 0)
 
     views["status"] = tag = _new_view("status", existing)
     gmsh.view.addHomogeneousModelData(tag, 0, model, "ElementData", element_tags,
                                       np.asarray(result.status, dtype=np.float64), numComponents=1)
-    # draw only the hexes that are not valid (status -1 or 0); valid ones (1) lie outside the range
+    # draw only the elements that are not valid (status -1 or 0); valid ones (1) lie outside the range
     gmsh.view.option.setNumber(tag, "RangeType", 2)
     gmsh.view.option.setNumber(tag, "CustomMin", -1.0)
     gmsh.view.option.setNumber(tag, "CustomMax", 0.0)
@@ -319,7 +378,7 @@ def post_views(result, element_tags=None, points=None, hexes=None, *, model: str
     bad = np.flatnonzero(np.asarray(result.status) == 0)
     views["argmin"] = tag = _new_view("argmin", existing)
     if bad.size:
-        xyz = world_points(points, hexes[bad], np.asarray(result.argmin)[bad])
+        xyz = world_points(points, cells, np.asarray(result.argmin))[bad]
         data = np.column_stack([xyz, np.asarray(result.min_det)[bad]]).ravel()
         gmsh.view.addListData(tag, "SP", int(bad.size), data)
     else:
@@ -327,7 +386,7 @@ def post_views(result, element_tags=None, points=None, hexes=None, *, model: str
     gmsh.view.option.setNumber(tag, "PointType", 1)  # spheres
     gmsh.view.option.setNumber(tag, "PointSize", 12)
     gmsh.view.option.setNumber(tag, "ShowScale", 0)
-    # colormap 0 is all black; inverted, all white: white spheres stand out on the dark red invalid hexes
+    # colormap 0 is all black; inverted, all white: white spheres stand out on the dark red invalid elements
     gmsh.view.option.setNumber(tag, "ColormapNumber", 0)
     gmsh.view.option.setNumber(tag, "ColormapInvert", 1)
     return views
@@ -393,7 +452,7 @@ def write_views(path: str) -> list:
 # --- check and repair ----------------------------------------------------------------------------------
 
 def check_model(*, method: str = "auto", relaxation: str = "quad2", post_views: bool = True, progress=None):
-    """Check every 8-node hexahedron of the current Gmsh model (all entities).
+    """Check every 3-D element of the current Gmsh model (all entities, every type :func:`model_cells` reads).
 
     Parameters
     ----------
@@ -401,24 +460,24 @@ def check_model(*, method: str = "auto", relaxation: str = "quad2", post_views: 
         Passed to :func:`hexsos_plugins.check` (``"auto"`` / ``"sos"``; ``"quad2"`` / ``"paper"``).
     post_views : bool, keyword-only
         Post (or re-post) the views ``"hexsos: min det J"``, ``"hexsos: status"`` and the argmin points of
-        the invalid hexes. Default True.
+        the invalid elements. Default True.
     progress : callable(done, total), optional
 
     Returns
     -------
     hexsos_plugins.CheckResult
-        Arrays in the order of ``result.extra["gmsh"].element_tags`` (a :class:`GmshHexes`, which also holds
-        the node tags, the dense arrays and the skipped higher-order hexahedra); the posted view tags are in
-        ``result.extra["gmsh_views"]``.
+        Arrays in the order of ``result.extra["gmsh"].element_tags`` (a :class:`GmshCells`, which also holds
+        the node tags, the dense arrays and the element types not checked); the posted view tags are in
+        ``result.extra["gmsh_views"]``; ``result.by_type()`` the counts per type.
 
     Raises
     ------
-    NoHexahedraError, GmshModelError, InvalidInputError (bad method / relaxation)
+    NoCellsError, GmshModelError, InvalidInputError (bad method / relaxation)
     """
     from hexsos_plugins.certify import check
 
-    hx = model_hexes()
-    result = check(hx.points, hx.hexes, method=method, relaxation=relaxation, progress=progress)
+    hx = model_cells()
+    result = check(hx.points, hx.cells, method=method, relaxation=relaxation, progress=progress)
     result.extra["gmsh"] = hx
     result.extra["gmsh_views"] = _post(result) if post_views else {}
     return result
@@ -426,45 +485,6 @@ def check_model(*, method: str = "auto", relaxation: str = "quad2", post_views: 
 
 def _post(result):
     return post_views(result)
-
-
-def _other_cells(gmsh, hx):
-    """The model's 3-D elements that are not 8-node hexahedra, as (meshio name, conn) in VTK order over the hex
-    nodes extended by theirs: returns (points, node_tags, cells, skipped) -- ``skipped`` counts elements of
-    types hexsos does not know (left out: their nodes are pinned)."""
-    from hexsos_plugins.elements import ELEMENTS
-
-    by_gmsh = {el.gmsh_type: el for el in ELEMENTS.values()}
-    raw, unknown = [], []
-    for etype in gmsh.model.mesh.getElementTypes(3):
-        if etype == HEX8:
-            continue
-        _, nodes = gmsh.model.mesh.getElementsByType(etype)
-        nodes = np.asarray(nodes, dtype=np.uint64)
-        el = by_gmsh.get(int(etype))
-        if el is None:
-            unknown.append(nodes)
-            continue
-        raw.append((el, nodes.reshape(-1, el.n_nodes)[:, list(el.gmsh_to_vtk)]))
-    extra = np.unique(np.concatenate([c.ravel() for _, c in raw] + unknown)) if (raw or unknown) else \
-        np.zeros(0, np.uint64)
-    extra = np.setdiff1d(extra, hx.node_tags)
-    tags = np.concatenate([hx.node_tags, extra])
-    points = hx.points
-    if extra.size:
-        coords = np.array([gmsh.model.mesh.getNode(int(t))[0] for t in extra], dtype=np.float64).reshape(-1, 3)
-        points = np.vstack([hx.points, coords])
-    order = np.argsort(tags, kind="stable")
-    st = tags[order]
-
-    def dense(t):
-        return order[np.searchsorted(st, t)]
-
-    cells = [(el.name, dense(c).astype(np.int64)) for el, c in raw]
-    pinned = np.zeros(points.shape[0], dtype=bool)
-    for u in unknown:
-        pinned[dense(u)] = True
-    return points, tags, cells, pinned
 
 
 def repair_model(*, repair_method: str = "optimize", boundary: str | None = None, min_sj=None,
@@ -498,15 +518,20 @@ def repair_model(*, repair_method: str = "optimize", boundary: str | None = None
     Returns
     -------
     RepairResult
-        The kernel's result; ``extra`` also holds ``"model_check"`` (the check of the hexes read back from Gmsh),
-        ``"gmsh"`` (the :class:`GmshHexes` the repair started from), ``"moved_node_tags"``, and
+        The kernel's result; ``extra`` also holds ``"model_check"`` (the check of every 3-D element read back
+        from Gmsh), ``"gmsh"`` (the :class:`GmshCells` the repair started from), ``"moved_node_tags"``, and
         ``"other_cells"`` (the final check of the other 3-D elements).
     """
     from hexsos_plugins import repair
 
     gmsh = _gmsh()
-    hx = model_hexes()
-    points, tags, cells, pinned = _other_cells(gmsh, hx)
+    hx = model_cells()
+    points, tags = hx.points, hx.node_tags
+    cells = [(t, c) for t, c in hx.cells if t != "hexahedron"]
+    pinned = hx.skipped_nodes.copy()
+    if hx.hexes.shape[0] == 0:
+        raise NoHexahedraError(f"the Gmsh model '{hx.model}' holds no 8-node hexahedra to repair; it holds "
+                               + ", ".join(f"{k} {t}" for t, k in hx.counts().items()))
     if pin_shared:
         for _, conn in cells:
             pinned[conn.ravel()] = True
@@ -520,9 +545,8 @@ def repair_model(*, repair_method: str = "optimize", boundary: str | None = None
     for i in moved:
         gmsh.model.mesh.setNode(int(tags[i]), new[i], [])
     after = check_model(method=method, relaxation=relaxation, post_views=post_views)
-    n = hx.points.shape[0]
     if post_views:
-        post_displacement(hx.node_tags, (new - points)[:n], model=hx.model)
+        post_displacement(hx.node_tags, new - points, model=hx.model)
         after.extra["gmsh_views"] = hexsos_views()
     res.extra["model_check"] = after
     res.extra["gmsh"] = hx

@@ -19,8 +19,8 @@ The panel (names as stored in ONELAB; Gmsh hides the leading digits, which fix t
                    Pin boundary, Repair max iterations, Repair method (optimize | paper), Repair boundary
                    (slide | fixed | free), Repair target min scaled Jacobian (auto | number)
       [Check]  [Repair]
-      Results      Hexahedra, Invalid, Invalid inside only, Undecided, Minimum det J, Skipped, Message,
-                   Minimum scaled Jacobian, Other 3-D cells not valid
+      Results      Elements checked, Invalid, Invalid inside only, Undecided, Minimum det J, Not checked,
+                   Message (with the counts per element type), Minimum scaled Jacobian, Other 3-D cells not valid
 """
 
 from __future__ import annotations
@@ -87,12 +87,12 @@ P_BOUNDARY = f"{_ROOT}/0Parameters/7Repair boundary"
 P_MIN_SJ = f"{_ROOT}/0Parameters/8Repair target min scaled Jacobian"
 P_CHECK = f"{_ROOT}/1Check"
 P_REPAIR = f"{_ROOT}/2Repair"
-R_HEXES = f"{_ROOT}/3Results/0Hexahedra"
+R_HEXES = f"{_ROOT}/3Results/0Elements checked"
 R_INVALID = f"{_ROOT}/3Results/1Invalid"
 R_INSIDE_ONLY = f"{_ROOT}/3Results/2Invalid inside only"
 R_UNDECIDED = f"{_ROOT}/3Results/3Undecided"
 R_MIN_DET = f"{_ROOT}/3Results/4Minimum det J"
-R_SKIPPED = f"{_ROOT}/3Results/5Skipped (higher order)"
+R_SKIPPED = f"{_ROOT}/3Results/5Not checked"
 R_MESSAGE = f"{_ROOT}/3Results/6Message"
 R_MIN_SJ = f"{_ROOT}/3Results/7Minimum scaled Jacobian"
 R_OTHER = f"{_ROOT}/3Results/8Other 3-D cells not valid"
@@ -109,7 +109,8 @@ def _parameters(method="auto", relaxation="quad2", rho=200.0, margin="auto", pin
 
     return [
         {"type": "string", "name": P_METHOD, "values": [method], "choices": ["auto", "sos"],
-         "help": "auto: Bernstein bounds, SOS only where the bracket stays open; sos: SOS on every hex (the paper)"},
+         "help": "auto: Bernstein bounds, SOS only where a hex's bracket stays open; sos: SOS on every trilinear hex "
+                 "(the paper)"},
         {"type": "string", "name": P_RELAXATION, "values": [relaxation], "choices": ["quad2", "paper"],
          "help": "quad2: order 2 with u(1-u) >= 0 ...; paper: the paper's relaxation (section 4.2)"},
         {"type": "number", "name": P_RHO, "values": [rho], "min": 0.0, "max": 1e4, "step": 10.0,
@@ -130,18 +131,21 @@ def _parameters(method="auto", relaxation="quad2", rho=200.0, margin="auto", pin
          "help": "stop raising the quality once every cell reaches this scaled Jacobian; auto: as high as it goes"},
         {"type": "string", "name": P_CHECK, "values": [ACTION_CHECK], "label": "Check",
          "attributes": {"Macro": "Action", "Aspect": "Button"},
-         "help": "prove every 8-node hex valid or invalid; posts the views"},
+         "help": "prove every 3-D element valid or invalid (tetrahedra, pyramids, prisms, hexahedra, linear and "
+                 "quadratic); posts the views"},
         {"type": "string", "name": P_REPAIR, "values": [ACTION_REPAIR], "label": "Repair",
          "attributes": {"Macro": "Action", "Aspect": "Button"},
-         "help": "move the nodes until every hex is proven valid, then check again"},
-        result(R_HEXES, "8-node hexahedra checked"),
-        result(R_INVALID, "hexes with a point where det J <= 0 (proven)"),
-        result(R_INSIDE_ONLY, "invalid hexes that are valid at all 8 corners: what corner checks miss"),
-        result(R_UNDECIDED, "hexes neither proven valid nor invalid (e.g. flat)"),
-        result(R_MIN_DET, "the smallest det J over all hexes, on the parameter cube [0,1]^3 (Gmsh's minDetJac x 8)"),
-        result(R_SKIPPED, "higher-order hexahedra, not trilinear: not checked"),
+         "help": "move the nodes until every element is proven valid, then check again"},
+        result(R_HEXES, "3-D elements checked (the Message gives the counts per type)"),
+        result(R_INVALID, "elements with a point where det J <= 0 (proven)"),
+        result(R_INSIDE_ONLY, "invalid elements that are valid at every node: what corner and node checks miss"),
+        result(R_UNDECIDED, "elements neither proven valid nor invalid (e.g. flat)"),
+        result(R_MIN_DET, "the smallest det J over all elements, on VTK's reference elements (hexahedra: the cube "
+                          "[0,1]^3, Gmsh's minDetJac x 8)"),
+        result(R_SKIPPED, "3-D elements of types with no exact element here (13- and 14-node pyramids, orders > 2)"),
         result(R_MIN_SJ, "the smallest corner scaled Jacobian (Verdict's, as HexaLab and ParaView) over the linear cells"),
-        result(R_OTHER, "tetrahedra, prisms, pyramids, ... not valid after the last repair"),
+        result(R_OTHER, "elements other than 8-node hexahedra (tetrahedra, prisms, pyramids, quadratic elements) "
+                        "not proven valid"),
         {"type": "string", "name": R_MESSAGE, "values": ["press Check"], "readOnly": True,
          "attributes": {"Highlight": "Ivory"}},
         # the main "Run" button of the ONELAB window runs the check too
@@ -226,18 +230,20 @@ def _highlight(name, colour):
     gmsh.onelab.set(json.dumps({"onelab": {"name": "hexsos", "parameters": [p]}}))
 
 
-def _show_result(result, message: str, *, min_sj=None, other=0) -> None:
+def _show_result(result, message: str, *, min_sj=None) -> None:
     gmsh = _gmsh()
     if min_sj is None:
-        from hexsos_plugins.quality import scaled_jacobian
+        from hexsos_plugins.kernel import scaled_jacobian
 
         hx0 = result.extra.get("gmsh")
-        min_sj = float(np.min(scaled_jacobian(hx0.points, hx0.hexes))) if hx0 is not None else float("nan")
+        sj = scaled_jacobian(hx0.points, hx0.cells) if hx0 is not None else np.full(1, np.nan)
+        min_sj = float(np.nanmin(sj)) if np.isfinite(sj).any() else float("nan")
     gmsh.onelab.setNumber(R_MIN_SJ, [float(min_sj)])
+    other = sum(c["cells"] - c["valid"] for t, c in result.by_type().items() if t != "hexahedron")
     gmsh.onelab.setNumber(R_OTHER, [int(other)])
     c = result.counts()
     hx = result.extra.get("gmsh")
-    gmsh.onelab.setNumber(R_HEXES, [c["hexes"]])
+    gmsh.onelab.setNumber(R_HEXES, [c["cells"]])
     gmsh.onelab.setNumber(R_INVALID, [c["invalid"]])
     gmsh.onelab.setNumber(R_INSIDE_ONLY, [c["invalid_inside_only"]])
     gmsh.onelab.setNumber(R_UNDECIDED, [c["undecided"]])
@@ -261,11 +267,26 @@ def run_check(**kwargs):
     p = read_parameters()
     p.update(kwargs)
     result = check_model(method=p["method"], relaxation=p["relaxation"])
-    c = result.counts()
-    _show_result(result, f"checked {c['hexes']} hexes in {result.seconds:.3g} s: "
-                         f"{c['invalid']} invalid ({c['invalid_inside_only']} inside only), "
-                         f"{c['undecided']} undecided")
+    _show_result(result, f"checked {_by_type(result)} in {result.seconds:.3g} s"
+                 + _not_checked(result.extra.get("gmsh")))
     return result
+
+
+def _by_type(result) -> str:
+    """'864 hexahedron (17 invalid, 1 inside only), 12 tetra' and so on."""
+    parts = []
+    for t, c in result.by_type().items():
+        bad = [f"{c['invalid']} invalid"] if c["invalid"] else []
+        bad += [f"{c['invalid_inside_only']} inside only"] if c["invalid_inside_only"] else []
+        bad += [f"{c['undecided']} undecided"] if c["undecided"] else []
+        parts.append(f"{c['cells']} {t}" + (f" ({', '.join(bad)})" if bad else " (all valid)"))
+    return ", ".join(parts)
+
+
+def _not_checked(hx) -> str:
+    if hx is None or not hx.skipped:
+        return ""
+    return "; not checked: " + ", ".join(f"{k} {name}" for name, k in hx.skipped.items())
 
 
 def run_repair(**kwargs):
@@ -282,17 +303,16 @@ def run_repair(**kwargs):
     after = res.extra["model_check"]
     c = after.counts()
     s = res.stats
-    other = int(s.get("other_cells_invalid_after", 0))
-    # success speaks for every 3-D cell of the model: the hexes (re-checked as Gmsh holds them) and the others
-    ok = res.success and c["invalid"] + c["undecided"] == 0 and other == 0
+    # success speaks for every 3-D element of the model, re-checked as Gmsh holds it after the repair
+    ok = res.success and c["valid"] == c["cells"]
     msg = (f"repair {'succeeded' if ok else 'did not succeed'}: {c['invalid']} invalid, "
-           f"{c['undecided']} undecided hexes left" + (f", {other} other 3-D cells not valid" if other else "")
+           f"{c['undecided']} undecided elements left (" + _by_type(after) + ")"
            + f"; min scaled Jacobian {s.get('min_sj_before', float('nan')):.3f} -> "
            f"{s.get('min_sj_after', float('nan')):.3f}; {len(res.extra['moved_node_tags'])} nodes moved "
            f"(max {s.get('max_displacement', float('nan')):.3g})")
     if res.message:
         msg += f"; {res.message}"
-    _show_result(after, msg, min_sj=s.get("min_sj_after"), other=other)
+    _show_result(after, msg, min_sj=s.get("min_sj_after"))
     return res
 
 

@@ -424,6 +424,13 @@ def _to_world(v, k3, *, down: bool):
     return w, bad
 
 
+#: The second pass over brackets still open: the memory for live boxes per thread (the first pass keeps 256
+#: boxes), at most _WIDE_CAP boxes, and the box budget as a multiple of ``max_boxes``.
+_WIDE_BYTES = 64 * 2**20
+_WIDE_CAP = 262144
+_WIDE_BOXES = 64
+
+
 def _check_block(P, conn, name, opts: _Options, progress=None, offset=0, total=None) -> CheckResult:
     """Check the cells conn (M, n) of one type; the whole pipeline, in this process."""
     from . import kernel
@@ -448,6 +455,17 @@ def _check_block(P, conn, name, opts: _Options, progress=None, offset=0, total=N
         boxes += int(out["boxes"].sum())
         if progress is not None:
             progress(offset + e, total if total is not None else M)
+    # brackets left open because the live boxes outgrew the kernel's working set (minima along an edge or a
+    # face, where many boxes stay within the tolerance): once more with a wide working set and a larger budget
+    wide = np.flatnonzero(~full["closed"] & ~full["flat"])
+    if wide.size:
+        cap = min(_WIDE_CAP, _WIDE_BYTES // (8 * (kernel.tables(name).nb + 14)))
+        again = kernel.run_cells(P, conn, wide, name, rtol=opts.rtol, flat_rtol=opts.flat_rtol,
+                                 max_depth=opts.max_depth, max_iter=_WIDE_BOXES * opts.max_boxes, cap=cap)
+        for k in keep:
+            full[k][wide] = again[k]
+        method[wide] = np.where(again["depth"] > 0, _SUBDIVISION, _BERNSTEIN)
+        boxes += int(again["boxes"].sum())
     r = full
     lower, value, argmin, err = r["lower"], r["value"], r["argmin"], r["err"]
     scale, flat = r["scale"], r["flat"]

@@ -153,6 +153,76 @@ def gmsh_mesh(kind: str = "ring", n: int = 8):
             gmsh.finalize()
 
 
+def mixed_msh(path, *, order: int = 1, incomplete: bool = True, size: float = 0.34, damage: float = 0.0,
+              seed: int = 0) -> dict:
+    """Write a Gmsh-made mixed mesh to ``path`` (any format Gmsh writes, e.g. ``.msh``): unit boxes in a row,
+    structured hexahedra beside tetrahedra (with the pyramids Gmsh puts where the hexahedra's quads meet
+    them), and apart from them a box of prisms (extruded triangles).
+
+    Parameters
+    ----------
+    order : {1, 2}, keyword-only
+        Element order. With 2, ``incomplete`` picks Gmsh's serendipity elements (hexahedron20, wedge15; the
+        pyramids are 13-node) or the complete ones (hexahedron27, wedge18, 14-node pyramids).
+    size : float, keyword-only
+        Target element size.
+    damage : float, keyword-only
+        Move this fraction of the interior nodes (seeded) by up to ``size`` in a random direction: inverted
+        and inside-folded elements of every type.
+    seed : int, keyword-only
+
+    Returns
+    -------
+    dict : Gmsh element type name -> count.
+    """
+    gmsh = _gmsh()
+    own = not gmsh.isInitialized()
+    if own:
+        gmsh.initialize(["-noenv"], readConfigFiles=False)
+    gmsh.option.setNumber("General.Terminal", 0)
+    try:
+        gmsh.model.add("hexsos-mixed")
+        occ = gmsh.model.occ
+        hexvol = occ.addBox(0, 0, 0, 1, 1, 1)
+        tetvol = occ.addBox(1, 0, 0, 1, 1, 1)
+        occ.fragment([(3, hexvol)], [(3, tetvol)])
+        tri = occ.addRectangle(3, 0, 0, 1, 1)  # in the plane z = 0, meshed with triangles, extruded along z
+        occ.extrude([(2, tri)], 0, 0, 1, numElements=[max(1, round(1 / size))], recombine=True)
+        occ.synchronize()
+        n = max(2, round(1 / size)) + 1
+        for dim, tag in gmsh.model.getBoundary([(3, hexvol)], combined=False, recursive=True):
+            if dim == 1:
+                gmsh.model.mesh.setTransfiniteCurve(tag, n)
+        for _, tag in gmsh.model.getBoundary([(3, hexvol)], combined=False):
+            gmsh.model.mesh.setTransfiniteSurface(tag)
+            gmsh.model.mesh.setRecombine(2, tag)
+        gmsh.model.mesh.setTransfiniteVolume(hexvol)
+        gmsh.option.setNumber("Mesh.MeshSizeMax", size)
+        gmsh.option.setNumber("Mesh.MeshSizeMin", size / 2)
+        gmsh.model.mesh.generate(3)
+        if order == 2:
+            gmsh.option.setNumber("Mesh.SecondOrderIncomplete", int(incomplete))
+            gmsh.model.mesh.setOrder(2)
+        if damage > 0:
+            tags, coords, _ = gmsh.model.mesh.getNodes(3, -1, includeBoundary=False)
+            tags = np.asarray(tags)
+            coords = np.asarray(coords).reshape(-1, 3)
+            rng = np.random.default_rng(seed)
+            pick = rng.random(tags.size) < damage
+            d = rng.standard_normal((int(pick.sum()), 3))
+            d *= (size * rng.random(d.shape[0]) / np.linalg.norm(d, axis=1))[:, None]
+            for t, x in zip(tags[pick], coords[pick] + d):
+                gmsh.model.mesh.setNode(int(t), x.tolist(), [])
+        counts = {gmsh.model.mesh.getElementProperties(t)[0]: len(gmsh.model.mesh.getElementsByType(t)[0])
+                  for t in gmsh.model.mesh.getElementTypes(3)}
+        gmsh.write(str(path))
+        return counts
+    finally:
+        gmsh.model.remove()
+        if own:
+            gmsh.finalize()
+
+
 def _hexes_from_gmsh(gmsh):
     """Points and hexes (VTK order) of the current Gmsh model (Gmsh's hexahedron order is VTK's)."""
     node_tags, coords, _ = gmsh.model.mesh.getNodes()

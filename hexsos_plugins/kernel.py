@@ -398,12 +398,19 @@ def _sj_args(points, conn, ids, name, out, start, stop):
 def scaled_jacobian(points, cells) -> np.ndarray:
     """Verdict's scaled Jacobian of every cell, compiled (the definitions and sample tables of
     :mod:`hexsos_plugins.quality`, which computes the same numbers with numpy). ``cells``: an (M, 8) hex array or
-    (cell_type, conn) pairs; NaN for types without one (quadratic cells)."""
+    (cell_type, conn) pairs. Quadratic cells get the value of their corner nodes' linear cell (their first
+    nodes in VTK order), as Verdict computes hexahedron, wedge and tetrahedron metrics for any node count."""
+    from .elements import ELEMENTS
     from .quality import SAMPLES, as_cell_list
 
     points = np.ascontiguousarray(points, dtype=np.float64)
     parts = []
     for name, conn in as_cell_list(cells):
+        conn = np.asarray(conn, dtype=np.int64)
+        if name not in SAMPLES and name in ELEMENTS:
+            linear = {"tet": "tetra", "prism": "wedge", "cube": "hexahedron", "pyramid": "pyramid"}[ELEMENTS[name].domain]
+            if conn.ndim == 2 and conn.shape[1] > ELEMENTS[linear].n_nodes:
+                name, conn = linear, conn[:, :ELEMENTS[linear].n_nodes]
         conn = np.ascontiguousarray(conn, dtype=np.int64)
         out = np.full(conn.shape[0], np.nan)
         if name in SAMPLES and conn.shape[0] and conn.shape[1] == SAMPLES[name][0].shape[1]:

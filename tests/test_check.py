@@ -226,3 +226,36 @@ def test_twists_near_a_half_turn_close_their_brackets():
     r = _check(X)
     assert (r.status == 1).all() and np.all(r.gap <= 1e-9 * r.scale)
     assert np.all(np.diff(r.min_det) > 0) or np.all(np.diff(r.min_det[::-1]) > 0)  # min det J falls towards pi
+
+
+def test_a_minimum_along_an_edge_still_closes_its_bracket():
+    """Two tetra10 from damaged Gmsh meshes whose det J is nearly constant along an edge near its minimum: the
+    first pass's working set of boxes overflows; the second, wider pass closes the bracket to 1e-9."""
+    from fractions import Fraction
+
+    import exact_reference as ref
+
+    cells = [[[1.495007341964736, 0.4998460545325731, 0.5001539454674268],
+              [1.048216837847206, 0.5442330154655307, 0.3239565244870231],
+              [1.12037742434037, 0.4046084485339555, 0.3557571158495711],
+              [1.0, 0.4999999999999999, 0.4999999999999999],
+              [1.119580524364551, 0.6077926669698347, 0.2589217821633535],
+              [1.105752026804315, 0.5214746214552606, 0.3587081607365026],
+              [1.307692383152553, 0.4522272515332643, 0.427955530658499],
+              [1.247503670982368, 0.4999230272662865, 0.5000769727337133],
+              [1.045563314634129, 0.5691703971882828, 0.430829602811717],
+              [1.060188712170185, 0.4523042242669777, 0.4278785579247855]],
+             [[1.414964117995466, 0.4999970375334812, 1.0], [1.338952236747937, 0.3048062287869217, 0.6951937712130782],
+              [1.218286083782263, 0.3762701936169138, 1.0], [1.536862678085674, 0.6060653167616676, 0.6544968362418654],
+              [1.376958177371702, 0.4024016331602015, 0.8475968856065391],
+              [1.2786191602651, 0.3405382112019177, 0.8475968856065391], [1.316625100888865, 0.4381336155751975, 1.0],
+              [1.376489607862299, 0.5972911316598932, 0.8476472503946199],
+              [1.338483667238534, 0.4996957272866135, 0.695244136001159],
+              [1.293007673982408, 0.577370647277181, 0.7405399619011451]]]
+    X = np.array(cells)
+    r = hs.check(X.reshape(-1, 3), [("tetra10", np.arange(20).reshape(2, 10))])
+    assert (r.status == 1).all() and np.all(r.gap <= 1e-9 * r.scale)
+    for i in range(2):
+        at = ref.exact_det(X[i], "tetra10", [Fraction(float(v)) for v in r.argmin[i]])
+        low = Fraction(float(r.lower_bound[i]))
+        assert low <= at <= low + Fraction(1, 10**9) * max(abs(c) for c in ref.exact_coefficients(X[i], "tetra10"))

@@ -420,7 +420,8 @@ def test_second_order_bound_is_below_the_exact_minimum_and_tight_near_it():
 
 def test_compiled_scaled_jacobian_is_verdicts_as_quality_computes_it():
     """The compiled scaled Jacobian (what hexsos check reports) equals quality.scaled_jacobian, itself tested
-    against vtkMeshQuality, on random cells of every linear type, inverted ones included; NaN elsewhere."""
+    against vtkMeshQuality, on random cells of every linear type, inverted ones included; quadratic cells get
+    their corners' value (Verdict's convention)."""
     from hexsos_plugins import quality
 
     rng = np.random.default_rng(71)
@@ -431,8 +432,16 @@ def test_compiled_scaled_jacobian_is_verdicts_as_quality_computes_it():
         a, b = quality.scaled_jacobian(P, [(name, C)]), kernel.scaled_jacobian(P, [(name, C)])
         assert (a < 0).any() and (a > 0.5).any()
         assert np.allclose(a, b, rtol=0, atol=1e-13), name
-    X = _perturbed("hexahedron27", 3, 0.1, 72)
-    assert np.isnan(kernel.scaled_jacobian(X.reshape(-1, 3), [("hexahedron27", np.arange(81).reshape(3, 27))])).all()
+    for name, linear in (("hexahedron27", "hexahedron"), ("hexahedron20", "hexahedron"), ("wedge15", "wedge"),
+                         ("wedge18", "wedge"), ("tetra10", "tetra")):
+        X = _perturbed(name, 40, 0.4, 72)
+        n = X.shape[1]
+        C = np.arange(X.shape[0] * n).reshape(-1, n)
+        got = kernel.scaled_jacobian(X.reshape(-1, 3), [(name, C)])
+        k = ELEMENTS[linear].n_nodes
+        want = quality.scaled_jacobian(X[:, :k].reshape(-1, 3), [(linear, np.arange(X.shape[0] * k).reshape(-1, k))])
+        assert np.isfinite(got).all() and np.allclose(got, want, rtol=0, atol=1e-13), name
+        assert (got < 0.9).any()  # perturbed corners: not the ideal value everywhere
 
 
 def test_the_compiled_kernel_releases_the_gil():
