@@ -158,8 +158,9 @@ def test_check_filter_by_label_in_pvpython(tmp_path, mixed_vtu):
     assert sum(folds["point:hexsos_invalid_inside_only"]) == counts["invalid_inside_only"]
     assert res["label"] == "HexSOS Check" and res["category"] == "Mesh Quality"
     assert res["properties"] == ["Input", "Method", "Relaxation"]
-    assert res["repair_properties"] == ["Input", "Margin", "MaxIterations", "Method", "PinBoundary",
-                                        "PinNonHexPoints", "Relaxation", "Rho"]
+    assert res["repair_properties"] == ["Boundary", "FeatureAngle", "Input", "Margin", "MaxIterations", "Method",
+                                        "MinScaledJacobian", "PinBoundary", "PinNonHexPoints", "Relaxation",
+                                        "RepairMethod", "Rho", "TimeLimit"]
     assert res["no_hex"]["cells"] == 0 and "no 3-D cells" in proc.stderr
     # ParaView's own numpy and VTK stay first on sys.path; the rest comes from HEXSOS_PYTHONPATH / the repo
     v = res["versions"]
@@ -170,25 +171,39 @@ def test_check_filter_by_label_in_pvpython(tmp_path, mixed_vtu):
 
 
 def test_repair_filter_in_pvpython(tmp_path):
+    """Both repairs in ParaView's own Python (its numpy and scipy): the default (untangle, quality, certify)
+    and the paper's, each giving what this process computes."""
     P, H = structured_grid(3)
     P[np.flatnonzero(np.all(np.isclose(P, 1 / 3), axis=1))[0], 0] += 0.4
     path = write_vtu(make_grid(P, [(HEX, h) for h in H]), tmp_path / "damaged.vtu")
     from hexsos_plugins import repair
 
-    expected = repair(P, H, method="paper", rho=200.0, max_iter=100)  # the filter's algorithm and defaults
-    assert expected.success
+    paper = repair(P, H, method="paper", boundary="free", rho=200.0)
+    default = repair(P, H)
+    assert paper.success and default.success
     res, _ = run_pvpython(tmp_path, f"""
         import json
         from paraview.simple import *
+        from paraview import servermanager
         LoadPlugin({PLUGIN!r}, ns=globals())
-        repaired = HexSOSRepair(Input=XMLUnstructuredGridReader(FileName=[{path!r}]))
-        repaired.Rho = 200.0
-        repaired.UpdatePipeline()
-        json.dump(report(repaired), open(OUT, "w"))
+        reader = XMLUnstructuredGridReader(FileName=[{path!r}])
+        out = {{}}
+        for method in ("optimize", "paper"):
+            repaired = HexSOSRepair(Input=reader)
+            repaired.RepairMethod = method
+            repaired.UpdatePipeline()
+            out[method] = report(repaired)
+            fd = servermanager.Fetch(repaired).GetFieldData()
+            out[method]["min_sj_after"] = fd.GetArray("hexsos_min_sj_after").GetValue(0)
+        json.dump(out, open(OUT, "w"))
     """)
-    assert set(res["cell:hexsos_status"]) == {1}
-    disp = np.array(res["point:hexsos_displacement"])
-    assert np.allclose(disp, expected.displacement, rtol=0, atol=1e-9)
+    for name, expected in (("optimize", default), ("paper", paper)):
+        assert set(res[name]["cell:hexsos_status"]) == {1}, name
+        disp = np.array(res[name]["point:hexsos_displacement"])
+        # the same algorithm on ParaView's numpy/scipy: the same mesh up to the optimizer's last digits
+        assert np.allclose(disp, expected.displacement, rtol=0, atol=1e-6), name
+        assert res[name]["min_sj_after"] == pytest.approx(expected.stats["min_sj_after"], abs=1e-6), name
+    assert res["optimize"]["min_sj_after"] > res["paper"]["min_sj_after"] + 0.2  # the point of the default
 
 
 def test_plugin_autoloads_from_pv_plugin_path_with_the_compat_directory(tmp_path, mixed_vtu):

@@ -487,26 +487,44 @@ def test_repair_filter_certifies_and_reports_the_displacement(damaged):
 
 def test_repair_options(damaged):
     f = HexSOSRepairFilter()
-    assert (f.GetRho(), f.GetMargin(), f.GetPinBoundary(), f.GetMaxIterations(), f.GetPinNonHexPoints()) == \
-        (200.0, None, False, 100, False)
+    assert (f.GetRepairMethod(), f.GetBoundary(), f.GetMinScaledJacobian(), f.GetFeatureAngle(), f.GetTimeLimit(),
+            f.GetMaxIterations()) == ("optimize", "slide", 0.0, 45.0, 0.0, 0)
+    assert (f.GetRho(), f.GetMargin(), f.GetPinBoundary(), f.GetPinNonHexPoints()) == (200.0, None, False, False)
     msgs = Messages(f)
     f.SetInputDataObject(0, damaged)
-    f.SetMaxIterations(0)
-    assert f.Update()  # nothing repaired: a warning, the input points back
-    assert len(msgs.warnings) == 1 and "not every hex" in msgs.warnings[0]
+    # the default repair raises the quality: the field data says by how much, as an independent count finds
+    assert f.Update() and not msgs.warnings
+    r = f.GetResult()
     out = f.GetOutputDataObject(0)
-    assert not np.abs(vtk_to_numpy(out.GetPointData().GetArray("hexsos_displacement"))).any()
+    field = {k: vtk_to_numpy(out.GetFieldData().GetArray(f"hexsos_{k}"))[0]
+             for k in ("min_sj_before", "min_sj_after", "p1_sj_after", "mean_sj_after")}
+    types = np.array([out.GetCellType(i) for i in range(out.GetNumberOfCells())])
+    new = vtk_to_numpy(out.GetPoints().GetData())
+    H = np.array([[out.GetCell(c).GetPointId(k) for k in range(8)] for c in np.flatnonzero(types == HEX)])
+    T = np.array([[out.GetCell(c).GetPointId(k) for k in range(4)] for c in np.flatnonzero(types == TETRA)])
+    sj = hs.kernel.scaled_jacobian(new, [("hexahedron", H), ("tetra", T)])
+    assert r.success and field["min_sj_after"] == pytest.approx(sj.min(), abs=1e-12)
+    # (the free-standing hexes' corners are feature corners of the boundary: pinned, they bound the minimum)
+    assert field["min_sj_after"] > 0 > field["min_sj_before"] and field["mean_sj_after"] >= field["p1_sj_after"]
+    # a repair that cannot succeed: the free-standing inside-only hex has every vertex on the boundary
+    f.SetBoundary("fixed")
+    assert f.Update()
+    assert len(msgs.warnings) == 1 and "not every" in msgs.warnings[0] and not f.GetResult().success
+    out = f.GetOutputDataObject(0)
     assert (cell_array(out, "hexsos_status") == 0).sum() == f.GetResult().check.invalid.sum() > 0
+    assert vtk_to_numpy(out.GetFieldData().GetArray("hexsos_repair_success")).tolist() == [0]
     mtime = f.GetMTime()
-    f.SetMaxIterations(0)
+    f.SetBoundary("fixed")
     assert f.GetMTime() == mtime
-    f.SetMaxIterations(100)
+    # the paper's repair and its own parameters
+    f.SetRepairMethod("paper")
+    f.SetBoundary("slide")  # the paper's method slides nothing: free
     f.SetMargin(0.01)
     f.SetRho(50.0)
     f.SetPinNonHexPoints(True)
     assert f.Update()
     r = f.GetResult()
-    assert r.success and r.stats["margin"] == 0.01 and r.stats["rho"] == 50.0
+    assert r.success and r.stats["margin"] == 0.01 and r.stats["rho"] == 50.0 and r.stats["method"] == "paper"
     disp = vtk_to_numpy(f.GetOutputDataObject(0).GetPointData().GetArray("hexsos_displacement"))
     tet, quad = damaged.GetCell(0), damaged.GetCell(28)
     for cell in (tet, quad):
@@ -515,6 +533,8 @@ def test_repair_options(damaged):
     f.SetMargin(0.0)  # the kernel refuses it: a VTK error
     f.Update()
     assert msgs.errors and "margin" in msgs.errors[-1]
+    with pytest.raises(ValueError, match="repair method"):
+        f.SetRepairMethod("magic")
 
 
 def test_repair_writes_voxels_as_hexahedra_beside_a_polyhedron():

@@ -432,6 +432,8 @@ def _argmin_polydata(points, blocks, cell_ids, result, elements) -> vtkPolyData:
 
 _METHODS = ("auto", "sos")
 _RELAXATIONS = ("quad2", "paper")
+_REPAIR_METHODS = ("optimize", "paper")
+_BOUNDARY_MODES = ("slide", "fixed", "free")
 
 
 def _doc(text):
@@ -616,10 +618,17 @@ class HexSOSRepairFilter(_HexSOSBase):
     type and connectivity; points they share with hexahedra move with the hexahedra unless
     ``SetPinNonHexPoints(True)``.
 
-    Options: ``SetRho`` (200), ``SetMargin`` (relative margin > 0; None: the kernel's default 1e-3),
-    ``SetPinBoundary`` (keep the boundary of the hex mesh fixed), ``SetMaxIterations`` (100),
-    ``SetPinNonHexPoints`` (keep points of non-hex cells fixed), ``SetMethod``, ``SetRelaxation``.
-    A repair that does not prove every hex valid still outputs the best mesh found, with a VTK warning.
+    Options: ``SetRepairMethod`` (``"optimize"``, default: untangle, raise the minimum scaled Jacobian, certify;
+    ``"paper"``: the paper's Algorithms 1 and 2), ``SetBoundary`` (``"slide"``, default: boundary points stay on
+    the input's boundary surface and features; ``"fixed"``; ``"free"``), ``SetMinScaledJacobian`` (target; 0:
+    as high as it goes), ``SetFeatureAngle`` (45 degrees), ``SetTimeLimit`` (seconds, 0: none),
+    ``SetMaxIterations`` (0: the method's default), ``SetPinBoundary`` (same as boundary "fixed"),
+    ``SetPinNonHexPoints`` (keep points of non-hex cells fixed); for ``"paper"`` also ``SetRho`` (200) and
+    ``SetMargin`` (relative margin > 0; None: the kernel's default 1e-3); ``SetMethod`` and ``SetRelaxation``
+    for the kernel. Field data also holds the quality before and after: ``hexsos_min_sj_before`` /
+    ``_after``, ``hexsos_p1_sj_after``, ``hexsos_mean_sj_after`` (Verdict's corner scaled Jacobian), and with a
+    sliding boundary ``hexsos_boundary_max_distance`` (the farthest boundary point from the input's surface).
+    A repair that does not prove every cell valid still outputs the best mesh found, with a VTK warning.
     Errors are reported as by :class:`HexSOSCheckFilter`. ``AbortExecuteOn()`` stops between iterations.
     """
 
@@ -628,8 +637,65 @@ class HexSOSRepairFilter(_HexSOSBase):
         self._rho = 200.0
         self._margin = None
         self._pin_boundary = False
-        self._max_iterations = 100
+        self._max_iterations = 0
         self._pin_non_hex = False
+        self._repair_method = "optimize"
+        self._boundary = "slide"
+        self._min_sj = 0.0
+        self._feature_angle = 45.0
+        self._time_limit = 0.0
+
+    @smproperty.stringvector(name="RepairMethod", label="Repair Method", default_values="optimize",
+                             number_of_elements=1)
+    @_string_list(*_REPAIR_METHODS)
+    @_doc("optimize: untangle, raise the minimum scaled Jacobian, certify every cell; paper: the paper's "
+          "Algorithms 1 and 2.")
+    def SetRepairMethod(self, value):
+        self._set("_repair_method", self._choice("repair method", value, _REPAIR_METHODS))
+
+    def GetRepairMethod(self) -> str:
+        return self._repair_method
+
+    @smproperty.stringvector(name="Boundary", default_values="slide", number_of_elements=1)
+    @_string_list(*_BOUNDARY_MODES)
+    @_doc("slide: boundary points stay on the input's boundary surface, feature edges and corners kept; fixed; "
+          "free (the paper's method knows fixed and free).")
+    def SetBoundary(self, value):
+        self._set("_boundary", self._choice("boundary", value, _BOUNDARY_MODES))
+
+    def GetBoundary(self) -> str:
+        return self._boundary
+
+    @smproperty.doublevector(name="MinScaledJacobian", label="Min Scaled Jacobian", default_values=0.0,
+                             number_of_elements=1)
+    @smdomain.doublerange(min=0.0, max=0.99)
+    @_doc("Stop raising the quality once every cell reaches this corner scaled Jacobian; 0: as high as it goes.")
+    def SetMinScaledJacobian(self, value):
+        v = float(value)
+        if not 0.0 <= v < 1.0:
+            raise ValueError(f"min scaled Jacobian: expected a number in [0, 1), found {value!r}")
+        self._set("_min_sj", v)
+
+    def GetMinScaledJacobian(self) -> float:
+        return self._min_sj
+
+    @smproperty.doublevector(name="FeatureAngle", label="Feature Angle", default_values=45.0, number_of_elements=1)
+    @smdomain.doublerange(min=0.0, max=180.0)
+    @_doc("Boundary slide: edges whose faces' normals differ by more than this (degrees) are feature edges.")
+    def SetFeatureAngle(self, value):
+        self._set("_feature_angle", float(value))
+
+    def GetFeatureAngle(self) -> float:
+        return self._feature_angle
+
+    @smproperty.doublevector(name="TimeLimit", label="Time Limit", default_values=0.0, number_of_elements=1)
+    @smdomain.doublerange(min=0.0)
+    @_doc("Seconds for untangling and quality (0: no limit); the certificate always runs.")
+    def SetTimeLimit(self, value):
+        self._set("_time_limit", float(value))
+
+    def GetTimeLimit(self) -> float:
+        return self._time_limit
 
     @smproperty.stringvector(name="Method", default_values="auto", number_of_elements=1)
     @_string_list(*_METHODS)
@@ -672,9 +738,10 @@ class HexSOSRepairFilter(_HexSOSBase):
     def GetPinBoundary(self) -> bool:
         return self._pin_boundary
 
-    @smproperty.intvector(name="MaxIterations", label="Max Iterations", default_values=100, number_of_elements=1)
+    @smproperty.intvector(name="MaxIterations", label="Max Iterations", default_values=0, number_of_elements=1)
     @smdomain.intrange(min=0, max=1000)
-    @_doc("Most outer iterations of the repair; the best mesh seen is returned if not every hex is valid.")
+    @_doc("Most outer iterations of the repair (0: the method's default); the best mesh seen is returned if not "
+          "every cell is valid.")
     def SetMaxIterations(self, value):
         self._set("_max_iterations", int(value))
 
@@ -718,10 +785,14 @@ class HexSOSRepairFilter(_HexSOSBase):
                 idx = np.concatenate([np.arange(a, b) for a, b in zip(starts, stops)])
                 pinned[np.asarray(conn, dtype=np.int64)[idx]] = True
         self.UpdateProgress(0.0)
-        result = repair(P, H, cells=others or None, rho=self._rho, margin=self._margin,
-                        pin_boundary=self._pin_boundary, max_iter=self._max_iterations, method="paper",
-                        kernel_method=self._method, relaxation=self._relaxation, progress=self._progress,
-                        callback=self._abort, pinned=pinned)
+        boundary = "fixed" if self._pin_boundary else self._boundary
+        if self._repair_method == "paper" and boundary == "slide":
+            boundary = "free"
+        result = repair(P, H, cells=others or None, method=self._repair_method, boundary=boundary,
+                        min_sj=self._min_sj or None, feature_angle=self._feature_angle,
+                        time_limit=self._time_limit or None, rho=self._rho, margin=self._margin,
+                        max_iter=self._max_iterations or None, kernel_method=self._method,
+                        relaxation=self._relaxation, progress=self._progress, callback=self._abort, pinned=pinned)
         out.ShallowCopy(inp)
         if is_voxel.any():
             _voxels_as_hexahedra(out, inp, types, cell_ids[is_voxel], H[is_voxel])
@@ -736,6 +807,13 @@ class HexSOSRepairFilter(_HexSOSBase):
         flag.SetName("hexsos_repair_success")
         flag.InsertNextTuple1(1 if result.success else 0)
         out.GetFieldData().AddArray(flag)
+        for key in ("min_sj_before", "min_sj_after", "p1_sj_after", "mean_sj_after", "boundary_max_distance"):
+            v = result.stats.get(key)
+            if isinstance(v, (int, float)):
+                arr = vtkDataArray.CreateDataArray(11)  # VTK_DOUBLE
+                arr.SetName(f"hexsos_{key}")
+                arr.InsertNextTuple1(float(v))
+                out.GetFieldData().AddArray(arr)
         _add_summary(out, "hexsos_summary", result.summary())
         self._result = result
         self.UpdateProgress(1.0)
