@@ -474,3 +474,20 @@ def test_the_compiled_kernel_releases_the_gil():
         done.set()
         th.join()
     assert c1 - c0 > 10_000, c1 - c0
+
+
+@pytest.mark.parametrize("name", ["tetra10", "wedge15", "wedge18", "hexahedron27"])
+def test_argmin_lies_in_the_reference_element_exactly(name):
+    """The polish moves along faces of the element: its point must stay inside in exact arithmetic (a point a
+    rounding beyond r + s + t = 1 is not in the element, and det J there proves nothing)."""
+    el = ELEMENTS[name]
+    X = _perturbed(name, 150, 0.3, 5)
+    r = _run(name, X)
+    assert (r.method_names() == "subdivision").sum() > 10  # many cells polished
+    for a in r.argmin:
+        f = [Fraction(float(v)) for v in a]
+        assert all(0 <= v <= 1 for v in f), (name, a)
+        if el.domain == "tet":
+            assert sum(f) <= 1, (name, a)
+        elif el.domain == "prism":
+            assert f[0] + f[1] <= 1, (name, a)
