@@ -451,10 +451,12 @@ def _write_repairable(directory) -> str:
     """:func:`_repairable` written by Gmsh as a .msh in ``directory``; returns its path."""
     path = str(directory / "repairable.msh")
     gmsh.initialize(readConfigFiles=False)
-    gmsh.option.setNumber("General.Terminal", 0)
-    gm.add_hex_mesh(*_repairable())
-    gmsh.write(path)
-    gmsh.finalize()
+    try:
+        gmsh.option.setNumber("General.Terminal", 0)
+        gm.add_hex_mesh(*_repairable())
+        gmsh.write(path)
+    finally:
+        gmsh.finalize()
     return path
 
 
@@ -556,12 +558,14 @@ def demo_msh(tmp_path_factory, demo):
     own = not gmsh.isInitialized()
     if own:
         gmsh.initialize(readConfigFiles=False)
-    gmsh.option.setNumber("General.Terminal", 0)
-    _load_scrambled(P, H, seed=5)
-    gmsh.write(path)
-    gmsh.model.remove()
-    if own:
-        gmsh.finalize()
+    try:
+        gmsh.option.setNumber("General.Terminal", 0)
+        _load_scrambled(P, H, seed=5)
+        gmsh.write(path)
+        gmsh.model.remove()
+    finally:
+        if own:
+            gmsh.finalize()
     return path
 
 
