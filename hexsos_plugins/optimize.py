@@ -459,6 +459,10 @@ def _lbfgs(fun, x, *, max_iter, memory=10, deadline=None, ftol=1e-9, stop=None):
 # --- the stages -------------------------------------------------------------------------------------------
 
 
+class _InnerStop(Exception):
+    """Ends one L-BFGS solve from its callback."""
+
+
 def untangle(prob: Problem, *, max_outer=60, max_iter=300, deadline=None, on_step=None, bernstein="flagged"):
     """Stage 1 on ``prob`` (its ``V`` is updated). Returns a dict: ``success`` (every corner determinant and
     hex coefficient positive), ``outer``, ``iterations``, ``evaluations``.
@@ -496,27 +500,31 @@ def untangle(prob: Problem, *, max_outer=60, max_iter=300, deadline=None, on_ste
             e, g = prob.untangle_energy(z, eps, flagged)
             return e, g
 
-        def cb(intermediate_result):
+        def cb(xk):  # named xk: every scipy passes the iterate itself (>= 1.11 would pass a result for another name)
             state["n"] = state.get("n", 0) + 1
+            state["x"] = np.array(xk, dtype=np.float64)
             if on_step is not None and (state["n"] == 1 or state["n"] % 25 == 0):  # progress, checkpoints, stop
-                on_step("untangle", prob.full(intermediate_result.x))
+                on_step("untangle", prob.full(state["x"]))
             if deadline is not None and time.perf_counter() > deadline:
-                raise StopIteration
+                raise _InnerStop
             # stop the inner solve once the current point is untangled (checked on the coordinates)
             if prob._last_dmin > 0:
-                V = prob.full(intermediate_result.x)
+                V = prob.full(state["x"])
                 if (prob.feasible_valid(V) if bernstein != "none" else True):
                     state["done"] = True
-                    raise StopIteration
+                    raise _InnerStop
 
-        res = minimize(fun, x, jac=True, method="L-BFGS-B", callback=cb,
-                       options={"maxiter": max_iter, "maxcor": 10, "ftol": 1e-12, "gtol": 1e-10})
-        x = res.x
-        info["iterations"] += int(res.nit)
+        try:  # our own exception: scipy < 1.11 (ParaView's) does not end a solve on StopIteration
+            res = minimize(fun, x, jac=True, method="L-BFGS-B", callback=cb,
+                           options={"maxiter": max_iter, "maxcor": 10, "ftol": 1e-12, "gtol": 1e-10})
+            x, nit, e_new = res.x, int(res.nit), float(res.fun)
+        except _InnerStop:
+            x, nit = state["x"], state["n"]
+            e_new = float(prob.untangle_energy(x, eps, flagged)[0])
+        info["iterations"] += nit
         info["outer"] = outer
         V = prob.full(x)
         prob.V = V
-        e_new = float(res.fun)
         bad = prob.bad_cells(V)
         if bernstein != "none":
             for f, b in zip(flagged, bad):
