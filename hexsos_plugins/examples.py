@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .errors import DependencyError
+from .errors import DependencyError, InvalidInputError
 from .hexahedron import CORNERS
 from .mesh import hexes_to_mesh  # noqa: F401 (re-exported: examples build meshes with it)
 
@@ -143,7 +143,7 @@ def gmsh_mesh(kind: str = "ring", n: int = 8):
             # revolve about the axis through (3, 0, 0) parallel to y
             g.revolve([(2, surf)], 3, 0, 0, 0, 1, 0, np.pi / 2, numElements=[2 * n], recombine=True)
         else:
-            raise ValueError(f"kind: expected 'ring' or 'box', found {kind!r}")
+            raise InvalidInputError(f"kind: expected 'ring' or 'box', found {kind!r}")
         g.synchronize()
         gmsh.model.mesh.generate(3)
         return _hexes_from_gmsh(gmsh)

@@ -39,6 +39,8 @@ from itertools import product
 
 import numpy as np
 
+from .errors import InvalidInputError
+
 __all__ = [
     "CORNERS",
     "LEX_TO_VTK",
@@ -118,14 +120,14 @@ def _as_soa(X, layout: str = "aos") -> np.ndarray:
     X = np.asarray(X, dtype=np.float64)
     if layout == "soa":
         if X.ndim != 3 or X.shape[:2] != (3, 8):
-            raise ValueError(f"expected structure-of-arrays coordinates of shape (3, 8, M), found {X.shape}")
+            raise InvalidInputError(f"expected structure-of-arrays coordinates of shape (3, 8, M), found {X.shape}")
         return np.ascontiguousarray(X)
     if layout != "aos":
-        raise ValueError(f"layout: expected 'aos' or 'soa', found {layout!r}")
+        raise InvalidInputError(f"layout: expected 'aos' or 'soa', found {layout!r}")
     if X.shape == (8, 3):
         X = X[None]
     if X.ndim != 3 or X.shape[1:] != (8, 3):
-        raise ValueError(f"expected hex vertex coordinates of shape (M, 8, 3) or (8, 3), found {X.shape}")
+        raise InvalidInputError(f"expected hex vertex coordinates of shape (M, 8, 3) or (8, 3), found {X.shape}")
     return np.ascontiguousarray(X.transpose(2, 1, 0))
 
 

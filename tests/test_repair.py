@@ -95,6 +95,17 @@ def test_single_hex_shape_and_valid_hex_unchanged():
     assert np.array_equal(r.points[8:], P[8:])  # the valid hex beside it (no shared vertex) never moved
 
 
+def test_initial_anchor_is_its_own_repair_and_certified():
+    # anchor="initial": the vertex update weighs the repaired hexes against the input's positions, not the current
+    P, H = _perturbed("box", 5, frac=0.3, amp=0.45, seed=11)
+    assert (hs.check(P, H).status != 1).sum() >= 2
+    runs = {a: rp.repair_paper(P, H, anchor=a) for a in ("current", "initial")}
+    for a, r in runs.items():
+        assert r.success and r.stats["anchor"] == a
+        assert (hs.check(r.points, H).status == 1).all()  # judged anew, not from the repair's bookkeeping
+    assert not np.array_equal(runs["initial"].points, runs["current"].points)  # the knob reaches the update
+
+
 def test_margin_must_be_positive_and_shapes_checked():
     for bad in (0.0, -1e-3, float("nan")):
         with pytest.raises(InvalidInputError, match="margin"):
@@ -375,7 +386,6 @@ def test_interrupted_repair_leaves_no_output_and_saves_a_checkpoint(tmp_path, si
     import signal
     import subprocess
     import sys
-    import time
 
     import meshio
 
@@ -389,13 +399,19 @@ def test_interrupted_repair_leaves_no_output_and_saves_a_checkpoint(tmp_path, si
     before = src.read_bytes()
     out = tmp_path / "out.vtu"
     proc = subprocess.Popen([sys.executable, "-m", "hexsos_plugins", "repair", str(src), "-o", str(out),
-                             "--no-fidelity"], stdout=subprocess.PIPE,
+                             "--no-fidelity", "--progress"], stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True)
     ckpt = checkpoint_path(str(out))
-    time.sleep(6.0)  # into the first outer steps (the whole repair takes tens of seconds here)
+    # the signal goes in once the repair reports its first step (its progress bar on stderr), not after a guess
+    seen = ""
+    while "repairing [" not in seen:
+        ch = proc.stderr.read(1)
+        assert ch, f"the repair ended before its first progress report: {seen!r}"
+        seen += ch
     assert proc.poll() is None
     proc.send_signal(getattr(signal, sig))
     stdout, stderr = proc.communicate(timeout=60)
+    stderr = seen + stderr
     assert proc.returncode == 130, stderr
     assert "Traceback" not in stderr and not out.exists()  # no OUT, not even half of one
     assert not list(tmp_path.glob(".out*"))  # no temporary file left behind
