@@ -83,9 +83,10 @@ def read_mesh(path, fix_orientation: bool):
     from .io import read
 
     mesh = read(path)
-    left = mesh.left_handed_types()
+    overall, per_type = mesh.orientation_and_types()
+    left = [t for t, o in per_type.items() if o == "left-handed"]
     if not left:
-        return mesh, mesh.orientation()
+        return mesh, overall
     counts = mesh.counts_by_type()
     what = ", ".join(f"all {counts[t]} {t} cells" for t in left)
     if not fix_orientation:

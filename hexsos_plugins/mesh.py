@@ -540,14 +540,19 @@ class Mesh:
         """
         return self._handedness(self.centre_det())
 
+    def orientation_and_types(self) -> tuple:
+        """``(orientation(), orientations())`` from one pass over the cells (the pass is most of their time)."""
+        d = self.centre_det()
+        types = self.cell_types
+        per_type = {t: self._handedness(d[types == CELL_TYPES.index(t)]) for t in self.counts_by_type()}
+        return self._handedness(d), per_type
+
     def orientations(self) -> dict:
         """``{cell_type: "right-handed" | "left-handed" | "mixed"}`` for each checked cell type, as
         :meth:`orientation` per type. A type that is ``"left-handed"`` while others are not is a file that
         mirrors that type's node order (e.g. linear wedges written with nodes 1<->2 and 4<->5 swapped, as Gmsh
         and meshio write them to VTK files)."""
-        d = self.centre_det()
-        types = self.cell_types
-        return {t: self._handedness(d[types == CELL_TYPES.index(t)]) for t in self.counts_by_type()}
+        return self.orientation_and_types()[1]
 
     def left_handed_types(self) -> list:
         """The cell types all of whose cells are negatively oriented (see :meth:`orientations`)."""
