@@ -337,12 +337,19 @@ class Problem:
             total, smin = 0.0, np.inf
             self.evaluations += 1
             for b in self.blocks:
-                e, m, ok = _nb.barrier(V, b["conn"], b["Gq3"], float(b["factor"]), float(t), _GB, _T, b["s"], BETA,
-                                       b["hex"], g, grad)
-                if not ok:
+                buf = b.get("cellbuf")
+                if buf is None:
+                    M, n = b["conn"].shape
+                    buf = b["cellbuf"] = (np.empty(M), np.empty(M), np.empty(M, dtype=np.bool_), np.empty((M, n, 3)))
+                ecell, mcell, okc, gcell = buf
+                _nb.barrier_cells(V, b["conn"], b["Gq3"], float(b["factor"]), float(t), b["s"], BETA, b["hex"], grad,
+                                  ecell, mcell, okc, gcell)
+                if not okc.all():
                     return np.inf, None
-                total += e
-                smin = min(smin, m)
+                total += float(ecell.sum())
+                smin = min(smin, float(mcell.min()))
+                if grad:
+                    _nb.scatter_cells(g, b["conn"], gcell)
             self._last_min_sj = smin
             total += self._boundary(V, g, True)
             return total, (g[self.free].ravel() if grad else None)
