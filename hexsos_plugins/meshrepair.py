@@ -174,6 +174,52 @@ def _dilate(masks, blocks, N, rings):
     return masks
 
 
+def _edge_graph(blocks, N):
+    """The unique edges (E, 2) of the linear cells."""
+    es = [conn[:, _edges_of(name)].reshape(-1, 2) for name, conn in blocks if conn.shape[0]]
+    if not es:
+        return np.zeros((0, 2), dtype=np.int64)
+    return np.unique(np.sort(np.concatenate(es), axis=1), axis=0)
+
+
+def _smooth_untangle(V, blocks, movable, bad_cells, max_sweeps=30):
+    """Stage 1's start: Laplacian sweeps (each vertex to the mean of its edge neighbours) over the ``movable``
+    vertices of the bad cells and one ring around them, each sweep kept only if it leaves fewer bad cells
+    (``bad_cells(V)`` -> per block (M,) bool). Returns (V, bad, sweeps kept).
+
+    Interior noise on a good mesh (the stress tests) is what smoothing removes: measured on graded20 stress 80%
+    (32,000 hexes, 25,768 inverted), 5 sweeps in 0.7 s leave none, where the barrier alone left 586 after 240 s.
+    It stops at the first sweep that does not help, so a mesh whose bad cells smoothing cannot fix (the bunny's
+    boundary folds) goes to the barrier as it came."""
+    N = V.shape[0]
+    E = _edge_graph(blocks, N)
+    if E.shape[0] == 0:
+        return V, bad_cells(V), 0
+    deg = np.bincount(E.ravel(), minlength=N).astype(np.float64)
+    bad = bad_cells(V)
+    nbad = sum(int(b.sum()) for b in bad)
+    kept = 0
+    for _ in range(max_sweeps):
+        if nbad == 0:
+            break
+        mv = _vertices(_dilate(bad, blocks, N, 1), blocks, N) & movable & (deg > 0)
+        if not mv.any():
+            break
+        S = np.zeros((N, 3))
+        for a in range(3):
+            S[:, a] = (np.bincount(E[:, 0], weights=V[E[:, 1], a], minlength=N)
+                       + np.bincount(E[:, 1], weights=V[E[:, 0], a], minlength=N))
+        W = V.copy()
+        W[mv] = S[mv] / deg[mv, None]
+        bad_w = bad_cells(W)
+        n_w = sum(int(b.sum()) for b in bad_w)
+        if n_w >= nbad:
+            break
+        V, bad, nbad = W, bad_w, n_w
+        kept += 1
+    return V, bad, kept
+
+
 def _vertices(masks, blocks, N):
     v = np.zeros(N, dtype=bool)
     for m, (_, conn) in zip(masks, blocks):
@@ -300,10 +346,15 @@ def repair(points, hexes, *, cells=None, method: str = "optimize", boundary: str
                              max_iter=100 if max_iter is None else int(max_iter), kernel_method=kernel_method,
                              relaxation=relaxation, progress=progress, callback=callback, anchor=anchor,
                              max_steps=max_steps, jobs=jobs, scheduler=scheduler)
-    return _Optimize(P0, H, others, pin, boundary=boundary, min_sj=min_sj, max_iter=max_iter, time_limit=time_limit,
-                     feature_angle=feature_angle, rings=rings, fallback=fallback, rho=rho, margin=margin,
-                     relaxation=relaxation, progress=progress, callback=callback, jobs=jobs,
-                     scheduler=scheduler).run()
+    import scipy.optimize  # noqa: F401 - loads scipy's BLAS before the thread count is set
+
+    from ._blas import single_thread
+
+    with single_thread():
+        return _Optimize(P0, H, others, pin, boundary=boundary, min_sj=min_sj, max_iter=max_iter,
+                         time_limit=time_limit, feature_angle=feature_angle, rings=rings, fallback=fallback, rho=rho,
+                         margin=margin, relaxation=relaxation, progress=progress, callback=callback, jobs=jobs,
+                         scheduler=scheduler).run()
 
 
 def _other_counts(res):
@@ -492,6 +543,17 @@ class _Optimize:
             full = opt.Problem(V, blocks, sizes, np.ones(N, dtype=bool))
             bad = full.bad_cells(V)
             untangled = not any(b.any() for b in bad)
+            if not untangled:
+                from .boundary import boundary_faces
+
+                interior = np.ones(N, dtype=bool)
+                for F in boundary_faces([("hexahedron", H)] + others):
+                    interior[F.ravel()] = False
+                V, bad, sweeps = _smooth_untangle(V, blocks, movable & interior, full.bad_cells)
+                info1["smoothing_sweeps"] = sweeps
+                untangled = not any(b.any() for b in bad)
+                if sweeps:
+                    self._step("smooth", V)
             rings = self.rings
             tries = 0
             while not untangled:
@@ -549,6 +611,17 @@ class _Optimize:
                         m, tau = m_new, min(m_new + 0.2, _TAU_MAX)
                         continue
                     break
+                if slide and np.any(V != P0):
+                    # stage 2's barrier outweighs the boundary penalty near its bound t, and its projections
+                    # are kept only where every cell stays above t: the vertices left off the surface go back
+                    # as far as they can with every cell staying above 95% of the minimum reached
+                    off = bm.vertices[bm.kind < 2]
+                    W = bm.project(V, off)
+                    off = off[np.any(W[off] != V[off], axis=1)]
+                    if off.size:
+                        prob = opt.Problem(V, blocks, sizes, np.isin(np.arange(N), off))
+                        t_keep = 0.95 * prob.min_sj(V)
+                        V = opt.project_valid(prob, V, W, off, t=t_keep if t_keep > 0 else None)
             stage_s["quality"] = time.perf_counter() - ts
         except _Stopped:
             V = self.best[1]
@@ -631,7 +704,7 @@ class _Optimize:
             "min_det_before": float(np.min(r0.min_det)), "min_det_after": float(np.min(r.min_det)),
             "min_sj_target": self.min_sj, "min_sj_target_reached": reached,
             "untangled": bool(untangled), "untangle_outer": int(info1["outer"]),
-            "untangle_iterations": int(info1["iterations"]), "quality_rounds": int(info2.get("rounds", 0)),
+            "untangle_iterations": int(info1["iterations"]), "smoothing_sweeps": int(info1.get("smoothing_sweeps", 0)), "quality_rounds": int(info2.get("rounds", 0)),
             "quality_iterations": int(info2.get("iterations", 0)), "fallback_used": used_fallback,
             "outer_iterations": len(self.history) - 1, "sos_steps": int(sum(h["sos_steps"] for h in self.history)),
             "projection_steps": 0, "sdp_solves": 0,
