@@ -100,6 +100,12 @@ def _hex_grid(V, conn, m, XU, XV, XW, f):
     eu = np.empty((2, 2, 3))
     ev = np.empty((2, 2, 3))
     ew = np.empty((2, 2, 3))
+    _hex_grid_s(V, conn, m, XU, XV, XW, f, eu, ev, ew)
+
+
+@njit(cache=True, inline="always")
+def _hex_grid_s(V, conn, m, XU, XV, XW, f, eu, ev, ew):
+    """:func:`_hex_grid` with its scratch arrays passed in."""
     for p in range(2):
         for q in range(2):
             for a in range(3):
@@ -321,12 +327,12 @@ def _scatter_local(gl, G, k, dE):
                     gl[i, a] += dE[a, d] * gi
 
 
-@njit(cache=True)
-def _hex_grid_grad_local(gl, XU, XV, XW, df):
-    """As :func:`_hex_grid_grad`, into the cell's own (8, 3) rows."""
-    GU = np.zeros((3, 3, 3))
-    GV = np.zeros((3, 3, 3))
-    GW = np.zeros((3, 3, 3))
+@njit(cache=True, inline="always")
+def _hex_grid_grad_local(gl, XU, XV, XW, df, GU, GV, GW):
+    """As :func:`_hex_grid_grad`, into the cell's own (8, 3) rows (GU, GV, GW scratch (3, 3, 3))."""
+    GU[:] = 0.0
+    GV[:] = 0.0
+    GW[:] = 0.0
     for a in range(3):
         for b in range(3):
             for c in range(3):
@@ -371,11 +377,34 @@ def barrier_cells(V, conn, G, factor, t, s, beta, hexes, want_grad, ecell, mcell
     M = conn.shape[0]
     K = G.shape[0]
     n = conn.shape[1]
-    for m in prange(M):
-        E = np.empty((3, 3))
-        C = np.empty((3, 3))
-        dE = np.empty((3, 3))
-        gl = np.zeros((n, 3))
+    chunk = 256
+    for ch in prange((M + chunk - 1) // chunk):
+        _barrier_chunk(V, conn, G, factor, t, s, beta, hexes, want_grad, ecell, mcell, okc, gcell, ch * chunk,
+                       min(M, (ch + 1) * chunk))
+
+
+@njit(cache=True)
+def _barrier_chunk(V, conn, G, factor, t, s, beta, hexes, want_grad, ecell, mcell, okc, gcell, lo, hi):
+    """Cells lo..hi-1 of :func:`barrier_cells` (its scratch arrays allocated once per chunk)."""
+    K = G.shape[0]
+    n = conn.shape[1]
+    E = np.empty((3, 3))
+    C = np.empty((3, 3))
+    dE = np.empty((3, 3))
+    gl = np.empty((n, 3))
+    XU = np.empty((3, 3, 3))
+    XV = np.empty((3, 3, 3))
+    XW = np.empty((3, 3, 3))
+    GU = np.empty((3, 3, 3))
+    GV = np.empty((3, 3, 3))
+    GW = np.empty((3, 3, 3))
+    eu = np.empty((2, 2, 3))
+    ev = np.empty((2, 2, 3))
+    ew = np.empty((2, 2, 3))
+    b = np.empty(27)
+    db = np.empty(27)
+    for m in range(lo, hi):
+        gl[:] = 0.0
         total = 0.0
         smin = np.inf
         ok = True
@@ -419,12 +448,7 @@ def barrier_cells(V, conn, G, factor, t, s, beta, hexes, want_grad, ecell, mcell
         if ok:
             total -= np.log(prod)
         if ok and hexes:
-            XU = np.empty((3, 3, 3))
-            XV = np.empty((3, 3, 3))
-            XW = np.empty((3, 3, 3))
-            b = np.empty(27)
-            db = np.empty(27)
-            _hex_grid(V, conn, m, XU, XV, XW, b)
+            _hex_grid_s(V, conn, m, XU, XV, XW, b, eu, ev, ew)
             _to_bernstein(b, True)
             inv3 = 1.0 / (s[m] ** 3)
             prod = 1.0
@@ -442,7 +466,7 @@ def barrier_cells(V, conn, G, factor, t, s, beta, hexes, want_grad, ecell, mcell
                 total -= beta * (lsum + np.log(prod))
                 if want_grad:
                     _to_bernstein(db, False)
-                    _hex_grid_grad_local(gl, XU, XV, XW, db)
+                    _hex_grid_grad_local(gl, XU, XV, XW, db, GU, GV, GW)
         ecell[m] = total
         mcell[m] = smin
         okc[m] = ok
