@@ -317,17 +317,6 @@ _SMALL = 1e-150
 
 
 @njit(cache=True, inline="always")
-def _scatter_local(gl, G, k, dE):
-    n = gl.shape[0]
-    for i in range(n):
-        for d in range(3):
-            gi = G[k, i, d]
-            if gi != 0.0:
-                for a in range(3):
-                    gl[i, a] += dE[a, d] * gi
-
-
-@njit(cache=True, inline="always")
 def _hex_grid_grad_local(gl, XU, XV, XW, df, GU, GV, GW):
     """As :func:`_hex_grid_grad`, into the cell's own (8, 3) rows (GU, GV, GW scratch (3, 3, 3))."""
     GU[:] = 0.0
@@ -377,17 +366,30 @@ def barrier_cells(V, conn, G, factor, t, s, beta, hexes, want_grad, ecell, mcell
     M = conn.shape[0]
     K = G.shape[0]
     n = conn.shape[1]
+    # the samples' nonzero entries (a hex corner's column has 2 of 8, the centre's 8): nz[k, d] of them, vertex
+    # gi[k, d, j] with weight gv[k, d, j]
+    nz = np.zeros((K, 3), dtype=np.int64)
+    gi = np.zeros((K, 3, n), dtype=np.int64)
+    gv = np.zeros((K, 3, n))
+    for k in range(K):
+        for d in range(3):
+            for i in range(n):
+                if G[k, i, d] != 0.0:
+                    gi[k, d, nz[k, d]] = i
+                    gv[k, d, nz[k, d]] = G[k, i, d]
+                    nz[k, d] += 1
     chunk = 256
     for ch in prange((M + chunk - 1) // chunk):
-        _barrier_chunk(V, conn, G, factor, t, s, beta, hexes, want_grad, ecell, mcell, okc, gcell, ch * chunk,
-                       min(M, (ch + 1) * chunk))
+        _barrier_chunk(V, conn, nz, gi, gv, factor, t, s, beta, hexes, want_grad, ecell, mcell, okc, gcell,
+                       ch * chunk, min(M, (ch + 1) * chunk))
 
 
 @njit(cache=True)
-def _barrier_chunk(V, conn, G, factor, t, s, beta, hexes, want_grad, ecell, mcell, okc, gcell, lo, hi):
+def _barrier_chunk(V, conn, nz, gi, gv, factor, t, s, beta, hexes, want_grad, ecell, mcell, okc, gcell, lo, hi):
     """Cells lo..hi-1 of :func:`barrier_cells` (its scratch arrays allocated once per chunk)."""
-    K = G.shape[0]
+    K = nz.shape[0]
     n = conn.shape[1]
+    X = np.empty((n, 3))
     E = np.empty((3, 3))
     C = np.empty((3, 3))
     dE = np.empty((3, 3))
@@ -405,19 +407,29 @@ def _barrier_chunk(V, conn, G, factor, t, s, beta, hexes, want_grad, ecell, mcel
     db = np.empty(27)
     for m in range(lo, hi):
         gl[:] = 0.0
+        for i in range(n):
+            v = conn[m, i]
+            X[i, 0] = V[v, 0]
+            X[i, 1] = V[v, 1]
+            X[i, 2] = V[v, 2]
         total = 0.0
         smin = np.inf
         ok = True
         prod = 1.0
         for k in range(K):
-            for a in range(3):
-                for d in range(3):
-                    acc = 0.0
-                    for i in range(n):
-                        gi = G[k, i, d]
-                        if gi != 0.0:
-                            acc += V[conn[m, i], a] * gi
-                    E[a, d] = acc
+            for d in range(3):
+                a0 = 0.0
+                a1 = 0.0
+                a2 = 0.0
+                for j in range(nz[k, d]):
+                    i = gi[k, d, j]
+                    w = gv[k, d, j]
+                    a0 += X[i, 0] * w
+                    a1 += X[i, 1] * w
+                    a2 += X[i, 2] * w
+                E[0, d] = a0
+                E[1, d] = a1
+                E[2, d] = a2
             c0 = E[0, 0] * E[0, 0] + E[1, 0] * E[1, 0] + E[2, 0] * E[2, 0]
             c1 = E[0, 1] * E[0, 1] + E[1, 1] * E[1, 1] + E[2, 1] * E[2, 1]
             c2 = E[0, 2] * E[0, 2] + E[1, 2] * E[1, 2] + E[2, 2] * E[2, 2]
@@ -444,7 +456,13 @@ def _barrier_chunk(V, conn, G, factor, t, s, beta, hexes, want_grad, ecell, mcel
                     dE[a, 0] = w * (factor / L * C[a, 0] - sj * E[a, 0] / c0)
                     dE[a, 1] = w * (factor / L * C[a, 1] - sj * E[a, 1] / c1)
                     dE[a, 2] = w * (factor / L * C[a, 2] - sj * E[a, 2] / c2)
-                _scatter_local(gl, G, k, dE)
+                for d in range(3):
+                    for j in range(nz[k, d]):
+                        i = gi[k, d, j]
+                        wv = gv[k, d, j]
+                        gl[i, 0] += dE[0, d] * wv
+                        gl[i, 1] += dE[1, d] * wv
+                        gl[i, 2] += dE[2, d] * wv
         if ok:
             total -= np.log(prod)
         if ok and hexes:
