@@ -362,7 +362,8 @@ def _hex_grid_grad_local(gl, XU, XV, XW, df, GU, GV, GW):
 @njit(cache=True, parallel=True)
 def barrier_cells(V, conn, G, factor, t, s, beta, hexes, want_grad, ecell, mcell, okc, gcell):
     """Stage 2's terms per cell (as :func:`barrier`): ecell (M,) energy, mcell (M,) min SJ, okc (M,) feasible,
-    gcell (M, n, 3) the cell's vertex gradient (when ``want_grad``)."""
+    gcell (M, n, 3) the cell's vertex gradient (when ``want_grad``). Returns whether every cell is feasible; when
+    not, the rows are incomplete (the work stops at the first infeasible cell of each thread's chunks)."""
     M = conn.shape[0]
     K = G.shape[0]
     n = conn.shape[1]
@@ -379,9 +380,13 @@ def barrier_cells(V, conn, G, factor, t, s, beta, hexes, want_grad, ecell, mcell
                     gv[k, d, nz[k, d]] = G[k, i, d]
                     nz[k, d] += 1
     chunk = 256
+    stop = np.zeros(1, dtype=np.int64)  # set by the first infeasible cell: the chunks not yet started skip
     for ch in prange((M + chunk - 1) // chunk):
-        _barrier_chunk(V, conn, nz, gi, gv, factor, t, s, beta, hexes, want_grad, ecell, mcell, okc, gcell,
-                       ch * chunk, min(M, (ch + 1) * chunk))
+        if stop[0] == 0:
+            if not _barrier_chunk(V, conn, nz, gi, gv, factor, t, s, beta, hexes, want_grad, ecell, mcell, okc,
+                                  gcell, ch * chunk, min(M, (ch + 1) * chunk)):
+                stop[0] = 1
+    return stop[0] == 0
 
 
 @njit(cache=True)
@@ -488,10 +493,13 @@ def _barrier_chunk(V, conn, nz, gi, gv, factor, t, s, beta, hexes, want_grad, ec
         ecell[m] = total
         mcell[m] = smin
         okc[m] = ok
+        if not ok:
+            return False
         if want_grad:
             for i in range(n):
                 for a in range(3):
                     gcell[m, i, a] = gl[i, a]
+    return True
 
 
 @njit(cache=True)

@@ -599,7 +599,15 @@ class _Optimize:
                     free = _vertices(core, blocks, N) & movable
                     prob = opt.Problem(V, blocks, sizes, free, slide=bm.slide(V, free) if slide else None)
                     project = (lambda W, p=prob: bm.project(W, p.slide.idx)) if slide and prob.slide.idx.size else None
-                    info = opt.improve(prob, target=self.min_sj, max_rounds=rounds_left, deadline=deadline,
+                    target = self.min_sj
+                    if target is None:
+                        # the cells that do not move cap the minimum: past their least scaled Jacobian this
+                        # region's rounds gain nothing until it widens (measured on graded20 ordinary: 11 rounds
+                        # raised the region from 0.50 to 0.67 while the mesh stayed at 0.503)
+                        out_sj = [v[~free[conn].any(axis=1)] for v, (_, conn) in zip(sj, blocks)]
+                        cap = min((float(v.min()) for v in out_sj if v.size), default=np.inf)
+                        target = cap if np.isfinite(cap) and cap < 1.0 else None
+                    info = opt.improve(prob, target=target, max_rounds=rounds_left, deadline=deadline,
                                        project=project, on_step=self._step)
                     V = prob.V
                     for k in ("rounds", "iterations"):
