@@ -3,7 +3,9 @@
 :func:`repair` (``method="optimize"``, the default) runs three stages on the linear cells of a mesh
 (hexahedra, and the tetrahedra, wedges and pyramids of a mixed mesh):
 
-1. **untangle** (:func:`hexsos_plugins.optimize.untangle`): Garanzha et al.'s regularized barrier on the corner
+1. **untangle**: first Laplacian sweeps over the interior vertices of the bad cells and one ring around them,
+   each kept only if it leaves fewer bad cells (interior noise on a good mesh, as in stress tests, is gone after
+   a few); then (:func:`hexsos_plugins.optimize.untangle`) Garanzha et al.'s regularized barrier on the corner
    Jacobians, plus the 27 Bernstein coefficients of det J of every hex that has one <= 0, until every corner
    determinant and every coefficient is positive. Only the cells near the bad ones move (``rings`` layers
    around them; doubled up to the whole mesh if that does not suffice).
@@ -11,7 +13,7 @@
    (Verdict's, :mod:`hexsos_plugins.quality`) and on the hexes' Bernstein coefficients, whose line search
    never leaves the valid set; it raises the minimum scaled Jacobian of the cells below a threshold and their
    neighbours, to ``min_sj`` or as high as it goes (``min_sj=None``: until the minimum stops rising, or the
-   budget).
+   budget; a region stops once it passes the cells left out, which cap the minimum, and then widens).
 3. **certify**: :func:`hexsos_plugins.check` on every hex (the kernel's proof over the whole element) and a
    check of every other 3-D cell (:func:`check_cells`). A mesh is reported repaired only when every cell is
    proven valid. If not, the paper's Algorithm 2 (:func:`hexsos_plugins.repair_paper.repair_paper`) runs on

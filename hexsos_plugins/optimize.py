@@ -40,7 +40,8 @@ as it can go with every cell still feasible.
 
 Everything is vectorized numpy: the linear maps are BLAS products, the per-sample nonlinear parts are
 elementwise array expressions in IEEE double precision (no fast-math), gradients analytic (tested against
-finite differences).
+finite differences). With numba the energies run in the compiled loops of :mod:`hexsos_plugins._optkernels`
+(stage 2's over the cells in parallel), which compute the same quantities.
 """
 
 from __future__ import annotations
