@@ -259,7 +259,7 @@ def repair(points, hexes, *, cells=None, method: str = "optimize", boundary: str
         Target minimum scaled Jacobian: stage 2 stops once every linear cell reaches it. Default None: as high
         as it goes (it stops when the minimum rose by less than 1e-3 in 3 rounds, or at the budget).
     max_iter : int, optional, keyword-only
-        ``"optimize"``: most outer steps per stage (default 60 untangling steps, 40 quality rounds).
+        ``"optimize"``: most outer steps per stage (default 60 untangling steps, 80 quality rounds).
         ``"paper"``: most outer iterations of Algorithm 2 (default 100).
     time_limit : float, optional, keyword-only
         Seconds for stages 1 and 2 (default None: no limit); certification always runs.
@@ -463,7 +463,7 @@ class _Optimize:
         self.P0, self.H, self.others, self.pin = P0, H, others, pin
         self.boundary, self.min_sj, self.time_limit = boundary, min_sj, time_limit
         self.max_outer = 60 if max_iter is None else int(max_iter)
-        self.max_rounds = 40 if max_iter is None else int(max_iter)
+        self.max_rounds = 80 if max_iter is None else int(max_iter)
         self.feature_angle, self.rings, self.fallback = feature_angle, rings, fallback
         self.rho, self.margin, self.relaxation = rho, margin, relaxation
         self.progress, self.callback = progress, callback
@@ -717,7 +717,8 @@ class _Optimize:
             "min_det_before": float(np.min(r0.min_det)), "min_det_after": float(np.min(r.min_det)),
             "min_sj_target": self.min_sj, "min_sj_target_reached": reached,
             "untangled": bool(untangled), "untangle_outer": int(info1["outer"]),
-            "untangle_iterations": int(info1["iterations"]), "smoothing_sweeps": int(info1.get("smoothing_sweeps", 0)), "quality_rounds": int(info2.get("rounds", 0)),
+            "untangle_iterations": int(info1["iterations"]), "smoothing_sweeps": int(info1.get("smoothing_sweeps", 0)),
+            "quality_rounds": int(info2.get("rounds", 0)),
             "quality_iterations": int(info2.get("iterations", 0)), "fallback_used": used_fallback,
             "outer_iterations": len(self.history) - 1, "sos_steps": int(sum(h["sos_steps"] for h in self.history)),
             "projection_steps": 0, "sdp_solves": 0,
