@@ -120,7 +120,7 @@ def _parameters(method="auto", relaxation="quad2", rho=200.0, margin="auto", pin
         {"type": "number", "name": P_PIN, "values": [pin], "choices": [0, 1],
          "help": "keep the boundary nodes where they are during the repair"},
         {"type": "number", "name": P_MAX_ITER, "values": [max_iter], "min": 1, "max": 10000, "step": 10,
-         "help": "outer iterations of the repair (optimize: per stage, at most 60 untangling steps and 40 quality "
+         "help": "outer iterations of the repair (optimize: per stage, at most 60 untangling steps and 80 quality "
                  "rounds below 100; paper: Algorithm 2's)"},
         {"type": "string", "name": P_REPAIR_METHOD, "values": [repair_method], "choices": ["optimize", "paper"],
          "help": "optimize: untangle, raise the minimum scaled Jacobian, certify every cell; paper: Algorithms 1-2"},

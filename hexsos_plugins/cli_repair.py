@@ -54,7 +54,7 @@ def add_parser(subparsers):
     p.add_argument("--time-limit", type=float, default=None, metavar="S",
                    help="seconds for untangling and quality (default: no limit); the certificate always runs")
     p.add_argument("--max-iter", type=int, default=None,
-                   help="most outer steps per stage (optimize: default 60 untangling steps, 40 quality rounds; "
+                   help="most outer steps per stage (optimize: default 60 untangling steps, 80 quality rounds; "
                         "paper: most outer iterations, default 100)")
     p.add_argument("--no-fallback", dest="fallback", action="store_false",
                    help="optimize: do not finish with the paper's Algorithm 2 when the optimizer ends uncertified")

@@ -392,8 +392,8 @@ def test_interrupted_repair_leaves_no_output_and_saves_a_checkpoint(tmp_path, si
     from comparison.stress import graded_solid, stress
     from hexsos_plugins.cli_repair import checkpoint_path
 
-    P, H = graded_solid(10)
-    P = stress(P, H, frac=0.9, amp=1.0, seed=2)  # 4,000 hexes, most inverted: a repair of many seconds
+    P, H = graded_solid(20)
+    P = stress(P, H, frac=0.8, amp=1.0, seed=2)  # 32,000 hexes, most inverted: a repair of many seconds (~15 s)
     src = tmp_path / "tangle.vtu"
     meshio.write(src, meshio.Mesh(P, [("hexahedron", H)], point_data={"t": np.arange(len(P), dtype=float)}))
     before = src.read_bytes()
