@@ -19,7 +19,7 @@ import pytest
 
 import hexsos_plugins.io as hio
 from hexsos_plugins.elements import ELEMENTS
-from hexsos_plugins.errors import MeshFormatError
+from hexsos_plugins.errors import HexsosError, MeshFormatError
 from hexsos_plugins.mesh import MIRROR, Mesh
 from hexsos_plugins.readers import readers_for
 from hexsos_plugins.readers.msh_binary import read_msh_binary
@@ -414,6 +414,32 @@ def test_numpy_msh_reader_refuses_truncated_files_and_declines_others(gm, tmp_pa
     from hexsos_plugins.readers.gmsh_api import read_gmsh_api
 
     assert_same_mesh(read_msh_binary(Path(gm["order1"]["41b"])), read_gmsh_api(Path(gm["order1"]["41b"])))
+
+
+def test_gmsh_reader_is_not_tried_on_a_binary_file_the_numpy_reader_found_broken(gm, tmp_path, monkeypatch):
+    import hexsos_plugins.readers as readers
+
+    calls = []
+    real = readers.read_gmsh_api
+    monkeypatch.setattr(readers, "read_gmsh_api", lambda q: calls.append(q) or real(q))
+    raw = Path(gm["order1"]["41b"]).read_bytes()
+    cut = tmp_path / "cut.msh"
+    cut.write_bytes(raw[: len(raw) // 2])  # counts beyond the end of the file: broken, Gmsh's reader not asked
+    with pytest.raises(MeshFormatError, match="truncated"):
+        hio.read(cut)
+    assert calls == []
+    # negative cases: a file the numpy reader only declines (ASCII) still reaches Gmsh's reader when meshio fails,
+    # and so does a binary file that is whole
+    raw = Path(gm["order1"]["41"]).read_bytes()
+    cut.write_bytes(raw[: len(raw) // 2])
+    with pytest.raises(HexsosError):
+        hio.read(cut)
+    assert calls == [cut]
+    monkeypatch.setattr(readers, "_via_meshio", lambda q, f: (_ for _ in ()).throw(readers._ParseError("no")))
+    monkeypatch.setattr(readers, "read_msh_binary", lambda q: (_ for _ in ()).throw(readers._ParseError(
+        "the numpy MSH reader declines this file: test")))
+    m = hio.read(gm["order1"]["41b"])
+    assert m.reader == "gmsh" and len(calls) == 2
 
 
 def test_gmsh_reader_leaves_no_session_and_declines_a_running_one(gm):

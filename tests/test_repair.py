@@ -383,6 +383,7 @@ def test_docstring_examples_run():
 
 @pytest.mark.parametrize("sig", ["SIGTERM", "SIGINT"])
 def test_interrupted_repair_leaves_no_output_and_saves_a_checkpoint(tmp_path, sig):
+    import re
     import signal
     import subprocess
     import sys
@@ -402,9 +403,9 @@ def test_interrupted_repair_leaves_no_output_and_saves_a_checkpoint(tmp_path, si
                              "--no-fidelity", "--progress"], stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True)
     ckpt = checkpoint_path(str(out))
-    # the signal goes in once the repair reports its first step (its progress bar on stderr), not after a guess
+    # the signal goes in once the repair reports cells repaired (its progress bar on stderr), not after a guess
     seen = ""
-    while "repairing [" not in seen:
+    while not re.search(r"repairing \[[#.]+\]\s+[\d.]+% [1-9][\d,]*/", seen):
         ch = proc.stderr.read(1)
         assert ch, f"the repair ended before its first progress report: {seen!r}"
         seen += ch
