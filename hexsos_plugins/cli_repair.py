@@ -46,7 +46,7 @@ def add_parser(subparsers):
                         "(--method paper: fixed or free, default free)")
     p.add_argument("--min-sj", type=float, default=None, metavar="TARGET",
                    help="stop raising the quality once every cell's scaled Jacobian reaches TARGET (exit 1 if it is "
-                        "not reached). Default: as high as it goes (until the minimum rises by less than 1e-3 in 3 "
+                        "not reached). Default: as high as it goes (until the minimum rises by less than 1e-3 in 6 "
                         "rounds, or --max-iter / --time-limit)")
     p.add_argument("--feature-angle", type=float, default=45.0, metavar="DEG",
                    help="--boundary slide: boundary edges whose faces' normals differ by more than DEG are feature "

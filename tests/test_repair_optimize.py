@@ -192,6 +192,16 @@ def test_bunny_repaired_to_min_scaled_jacobian_above_02_boundary_sliding(bunny_p
     assert r.stats["boundary_max_distance"] < 0.02 * diag
 
 
+def test_bunny_target_is_reached_from_a_start_rounding_moved(bunny_path):
+    # rounding decides where stage 2 goes: from this start (coordinates moved by 1e-13) solves stopped at the target
+    # and projected back onto the surface settled at 0.11, and the last projection took a reached 0.203 to 0.196
+    mesh = hs.read(bunny_path)
+    P = mesh.points + 1e-13 * np.random.default_rng(0).standard_normal(mesh.points.shape)
+    r = hs.repair(P, mesh.hexes, min_sj=0.2)
+    assert r.success and _certified(r.points, mesh.hexes)
+    assert scaled_jacobian(r.points, mesh.hexes).min() >= 0.2 and r.stats["min_sj_target_reached"] is True
+
+
 def test_budget_exhausted_returns_the_best_mesh_and_says_so():
     P, H = structured_grid(2)
     P = P.copy()
