@@ -735,10 +735,12 @@ def _repair(points, hexes, *, rho, margin, pin_boundary, max_iter, method, relax
         no_gain = 0 if gain else no_gain + 1
         if score > best[0]:
             best = (score, V.copy(), it)
+        # the callback (a checkpoint's record) sees the step before the progress report says it happened
+        stop = callback is not None and callback(entry, _readonly(V))
         if progress is not None:
             done_shown = max(done_shown, bad0 - int((status != 1).sum()))
             progress(min(done_shown, bad0), bad0)
-        if callback is not None and callback(entry, _readonly(V)):
+        if stop:
             stopped = "callback"
             break
         if not moved.any():
