@@ -165,44 +165,11 @@ def _to_bernstein(f, forward):
 @njit(cache=True)
 def _hex_grid_grad(g, conn, m, XU, XV, XW, df):
     """Add to g the gradient of sum_q df[q] f_q (f the grid values of :func:`_hex_grid`)."""
-    GU = np.zeros((3, 3, 3))
-    GV = np.zeros((3, 3, 3))
-    GW = np.zeros((3, 3, 3))
-    for a in range(3):
-        for b in range(3):
-            for c in range(3):
-                d = df[9 * a + 3 * b + c]
-                u = XU[b, c]
-                v = XV[a, c]
-                w = XW[a, b]
-                GU[b, c, 0] += d * (v[1] * w[2] - v[2] * w[1])
-                GU[b, c, 1] += d * (v[2] * w[0] - v[0] * w[2])
-                GU[b, c, 2] += d * (v[0] * w[1] - v[1] * w[0])
-                GV[a, c, 0] += d * (w[1] * u[2] - w[2] * u[1])
-                GV[a, c, 1] += d * (w[2] * u[0] - w[0] * u[2])
-                GV[a, c, 2] += d * (w[0] * u[1] - w[1] * u[0])
-                GW[a, b, 0] += d * (u[1] * v[2] - u[2] * v[1])
-                GW[a, b, 1] += d * (u[2] * v[0] - u[0] * v[2])
-                GW[a, b, 2] += d * (u[0] * v[1] - u[1] * v[0])
-    for p in range(2):
-        for q in range(2):
-            for a in range(3):
-                su = 0.0
-                sv = 0.0
-                sw = 0.0
-                for b in range(3):
-                    for c in range(3):
-                        w = _W[b, p] * _W[c, q]
-                        if w != 0.0:
-                            su += w * GU[b, c, a]
-                            sv += w * GV[b, c, a]
-                            sw += w * GW[b, c, a]
-                g[conn[m, _NODE[1, p, q]], a] += su
-                g[conn[m, _NODE[0, p, q]], a] -= su
-                g[conn[m, _NODE[p, 1, q]], a] += sv
-                g[conn[m, _NODE[p, 0, q]], a] -= sv
-                g[conn[m, _NODE[p, q, 1]], a] += sw
-                g[conn[m, _NODE[p, q, 0]], a] -= sw
+    gl = np.zeros((8, 3))
+    _hex_grid_grad_local(gl, XU, XV, XW, df, np.empty((3, 3, 3)), np.empty((3, 3, 3)), np.empty((3, 3, 3)))
+    for i in range(8):
+        for a in range(3):
+            g[conn[m, i], a] += gl[i, a]
 
 
 @njit(cache=True)
