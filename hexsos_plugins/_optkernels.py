@@ -219,65 +219,11 @@ def untangle_bernstein(V, conn, rows, GB, T, s, eps, theta_b, g, want_grad):
     return total, bmin
 
 
-@njit(cache=True)
-def barrier(V, conn, G, factor, t, GB, T, s, beta, hexes, g, want_grad):
-    """Stage 2: ``-sum log(SJ_k - t) - beta sum log(b_p / s^3)``; returns (energy, min SJ, feasible)."""
-    M = conn.shape[0]
-    K = G.shape[0]
-    E = np.empty((3, 3))
-    C = np.empty((3, 3))
-    dE = np.empty((3, 3))
-    XU = np.empty((3, 3, 3))
-    XV = np.empty((3, 3, 3))
-    XW = np.empty((3, 3, 3))
-    b = np.empty(27)
-    db = np.empty(27)
-    total = 0.0
-    smin = np.inf
-    for m in range(M):
-        for k in range(K):
-            _sample(V, conn, m, G, k, E)
-            c0 = E[0, 0] * E[0, 0] + E[1, 0] * E[1, 0] + E[2, 0] * E[2, 0]
-            c1 = E[0, 1] * E[0, 1] + E[1, 1] * E[1, 1] + E[2, 1] * E[2, 1]
-            c2 = E[0, 2] * E[0, 2] + E[1, 2] * E[1, 2] + E[2, 2] * E[2, 2]
-            L = np.sqrt(c0) * np.sqrt(c1) * np.sqrt(c2)
-            if not (L > 0.0):
-                return np.inf, -np.inf, False
-            D = _cof(E, C)
-            sj = factor * D / L
-            if sj < smin:
-                smin = sj
-            gap = sj - t
-            if not (gap > 0.0):
-                return np.inf, smin, False
-            total -= np.log(gap)
-            if want_grad:
-                w = -1.0 / gap
-                cl = (c0, c1, c2)
-                for a in range(3):
-                    for d in range(3):
-                        dE[a, d] = w * (factor / L * C[a, d] - sj * E[a, d] / cl[d])
-                _scatter(g, conn, m, G, k, dE)
-        if hexes:
-            _hex_grid(V, conn, m, XU, XV, XW, b)
-            _to_bernstein(b, True)
-            s3 = s[m] ** 3
-            for p in range(27):
-                if not (b[p] > 0.0):
-                    return np.inf, smin, False
-                total -= beta * np.log(b[p] / s3)
-                db[p] = -beta / b[p]
-            if want_grad:
-                _to_bernstein(db, False)
-                _hex_grid_grad(g, conn, m, XU, XV, XW, db)
-    return total, smin, True
-
-
 # --- stage 2 over the cells in parallel --------------------------------------------------------------------
 # Each cell writes its energy, its minimum and its vertex gradient (n, 3) to its own rows; the sums and the scatter
 # run after, in cell order, so the result does not depend on the number of threads. The logarithms of a cell's
 # 9 gaps and of its 27 coefficients are taken of their products (one log per 1e+-150 of range): 36 logarithms
-# per hex were most of the time of the serial loop.
+# per hex were most of the time of a loop with one log each.
 
 _BIG = 1e150
 _SMALL = 1e-150
@@ -328,7 +274,7 @@ def _hex_grid_grad_local(gl, XU, XV, XW, df, GU, GV, GW):
 
 @njit(cache=True, parallel=True)
 def barrier_cells(V, conn, G, factor, t, s, beta, hexes, want_grad, ecell, mcell, okc, gcell):
-    """Stage 2's terms per cell (as :func:`barrier`): ecell (M,) energy, mcell (M,) min SJ, okc (M,) feasible,
+    """Stage 2's terms per cell: ecell (M,) energy, mcell (M,) min SJ, okc (M,) feasible,
     gcell (M, n, 3) the cell's vertex gradient (when ``want_grad``). Returns whether every cell is feasible; when
     not, the rows are incomplete (the work stops at the first infeasible cell of each thread's chunks)."""
     M = conn.shape[0]
