@@ -31,7 +31,7 @@ import time
 import numpy as np
 
 from hexsos_plugins import check, repair
-from hexsos_plugins.examples import gmsh_mesh
+from hexsos_plugins.examples import gmsh_mesh, gmsh_model
 from hexsos_plugins.fidelity import boundary_fidelity, boundary_quads
 from hexsos_plugins.meshrepair import boundary_vertex_mask, check_cells, hex_edge_length
 from hexsos_plugins.quality import scaled_jacobian, summary
@@ -74,14 +74,7 @@ def perturbed_ring(n, *, frac=0.02, amp=0.5, seed=0):
 
 def gmsh_untangle(P, H):
     """Gmsh's untangler on a discrete model: boundary quads on a discrete surface (fixed), the rest free."""
-    import gmsh
-
-    own = not gmsh.isInitialized()
-    if own:
-        gmsh.initialize(["-noenv"], readConfigFiles=False)
-    gmsh.option.setNumber("General.Terminal", 0)
-    try:
-        gmsh.model.add("hexsos-untangle")
+    with gmsh_model("hexsos-untangle") as gmsh:
         q = boundary_quads(H)
         bnodes = np.unique(q)
         inner = np.setdiff1d(np.arange(len(P)), bnodes)
@@ -102,10 +95,6 @@ def gmsh_untangle(P, H):
         H2 = np.asarray(enodes, dtype=np.int64).reshape(-1, 8) - 1
         order = np.argsort(np.asarray(etags))
         return Q, H2[order], wall, cpu
-    finally:
-        gmsh.model.remove()
-        if own:
-            gmsh.finalize()
 
 
 def _disp(P, Q):

@@ -50,16 +50,12 @@ def random_cells(name, m, *, sigma=None, seed=SEED):
 
 def gmsh_cells(name, n, *, seed=SEED):
     """A Gmsh-made mesh of cells of the type (see the module docstring), interior nodes moved: points, conn."""
-    import gmsh
-
     from hexsos_plugins.elements import ELEMENTS
+    from hexsos_plugins.examples import gmsh_model
 
     el = ELEMENTS[name]
     base = {"tet": "tetra", "prism": "wedge", "cube": "hexahedron", "pyramid": "hexahedron"}[el.domain]
-    gmsh.initialize(["-noenv"], readConfigFiles=False)
-    try:
-        gmsh.option.setNumber("General.Terminal", 0)
-        gmsh.model.add(f"exp8-{name}")
+    with gmsh_model(f"exp8-{name}") as gmsh:
         g = gmsh.model.geo
         pts = [g.addPoint(x, y, 0, 1.0 / n) for x, y in ((0, 0), (1, 0), (1, 1), (0, 1))]
         lines = [g.addLine(pts[i], pts[(i + 1) % 4]) for i in range(4)]
@@ -86,8 +82,6 @@ def gmsh_cells(name, n, *, seed=SEED):
         _, enodes = gmsh.model.mesh.getElementsByType(ELEMENTS[src].gmsh_type)
         conn = np.searchsorted(np.asarray(tags)[order], np.asarray(enodes).reshape(-1, ELEMENTS[src].n_nodes))
         conn = conn[:, np.array(ELEMENTS[src].gmsh_to_vtk)]
-    finally:
-        gmsh.finalize()
     if name == "pyramid":  # each hexahedron into 6 pyramids: its faces (outward) to its centre
         from hexsos_plugins.elements import ELEMENTS as E
 

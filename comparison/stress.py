@@ -17,46 +17,15 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["graded_solid", "stress", "single_fold", "hex_prism_block", "gmsh_cells"]
+from gmsh_plugin.model import model_cells
+from hexsos_plugins.examples import gmsh_model
 
-
-def _gmsh():
-    import gmsh
-
-    own = not gmsh.isInitialized()
-    if own:
-        gmsh.initialize(["-noenv"], readConfigFiles=False)
-    gmsh.option.setNumber("General.Terminal", 0)
-    return gmsh, own
-
-
-def gmsh_cells(gmsh):
-    """Points and 3-D cells of the current Gmsh model: (P, [(meshio name, conn in VTK order), ...])."""
-    from hexsos_plugins.elements import ELEMENTS
-
-    by_gmsh = {el.gmsh_type: el for el in ELEMENTS.values()}
-    tags, coords, _ = gmsh.model.mesh.getNodes()
-    order = np.argsort(tags)
-    tags = np.asarray(tags)[order]
-    P = np.asarray(coords).reshape(-1, 3)[order]
-    cells, used = [], []
-    for etype in gmsh.model.mesh.getElementTypes(3):
-        el = by_gmsh[int(etype)]
-        _, nodes = gmsh.model.mesh.getElementsByType(etype)
-        conn = np.searchsorted(tags, np.asarray(nodes).reshape(-1, el.n_nodes))[:, list(el.gmsh_to_vtk)]
-        cells.append((el.name, conn))
-        used.append(conn.ravel())
-    u = np.unique(np.concatenate(used))
-    remap = np.full(P.shape[0], -1)
-    remap[u] = np.arange(u.size)
-    return P[u].copy(), [(n, remap[c].astype(np.int64)) for n, c in cells]
+__all__ = ["graded_solid", "stress", "single_fold", "hex_prism_block"]
 
 
 def graded_solid(n: int = 8, *, progression: float = 1.15):
     """Points and hexes of a graded curved solid with 2n x n x 2n hexes (see the module docstring)."""
-    gmsh, own = _gmsh()
-    try:
-        gmsh.model.add("hexsos-graded")
+    with gmsh_model("hexsos-graded") as gmsh:
         g = gmsh.model.geo
         c = g.addPoint(0, 0, 0)
         a1, a2 = g.addPoint(1, 0, 0), g.addPoint(2, 0, 0)
@@ -74,12 +43,9 @@ def graded_solid(n: int = 8, *, progression: float = 1.15):
         g.revolve([(2, surf)], 3, 0, 0, 0, 1, 0, np.pi / 2, numElements=[2 * n], recombine=True)
         g.synchronize()
         gmsh.model.mesh.generate(3)
-        P, cells = gmsh_cells(gmsh)
+        mc = model_cells()
+        P, cells = mc.points, mc.cells
         return P, dict(cells)["hexahedron"]
-    finally:
-        gmsh.model.remove()
-        if own:
-            gmsh.finalize()
 
 
 def _interior(H, N, cells=()):
@@ -149,9 +115,7 @@ def single_fold(n: int = 5, *, seed: int = 0):
 
 def hex_prism_block(n: int = 6, *, amp: float = 0.2, seed: int = 0, layers: int = 5):
     """Issue 14's mesh: points and [("hexahedron", H), ("wedge", W)] (VTK order), interface nodes moved."""
-    gmsh, own = _gmsh()
-    try:
-        gmsh.model.add("hexsos-mix")
+    with gmsh_model("hexsos-mix") as gmsh:
         g = gmsh.model.geo
         p = [g.addPoint(x, y, 0) for x, y in ((0, 0), (1, 0), (2, 0), (2, 1), (1, 1), (0, 1))]
         lines = [g.addLine(p[i], p[(i + 1) % 6]) for i in range(6)]
@@ -165,11 +129,8 @@ def hex_prism_block(n: int = 6, *, amp: float = 0.2, seed: int = 0, layers: int 
         g.extrude([(2, left), (2, right)], 0, 0, 1, numElements=[layers], recombine=True)
         g.synchronize()
         gmsh.model.mesh.generate(3)
-        P, cells = gmsh_cells(gmsh)
-    finally:
-        gmsh.model.remove()
-        if own:
-            gmsh.finalize()
+        mc = model_cells()
+        P, cells = mc.points, mc.cells
     cells = dict(cells)
     H, W = cells["hexahedron"], cells["wedge"]
     rng = np.random.default_rng(seed)

@@ -5,6 +5,8 @@ Nothing here reads a file: every mesh is generated, so tests, benchmarks and ``h
 
 from __future__ import annotations
 
+import contextlib
+
 import numpy as np
 
 from .errors import DependencyError, InvalidInputError
@@ -12,6 +14,7 @@ from .hexahedron import CORNERS
 from .mesh import hexes_to_mesh  # noqa: F401 (re-exported: examples build meshes with it)
 
 __all__ = [
+    "gmsh_model",
     "unit_cube",
     "inside_invalid_hex",
     "twisted_hex",
@@ -98,6 +101,27 @@ def _gmsh():
     return gmsh
 
 
+@contextlib.contextmanager
+def gmsh_model(name: str):
+    """A Gmsh model of its own for the block (``with gmsh_model("m") as gmsh: ...``), removed after; Gmsh is
+    initialized for the block (without the user's configuration, quiet) unless a session is open, then left as
+    it was."""
+    gmsh = _gmsh()
+    own = not gmsh.isInitialized()
+    if own:
+        gmsh.initialize(["-noenv"], readConfigFiles=False)
+    try:
+        gmsh.option.setNumber("General.Terminal", 0)
+        gmsh.model.add(name)
+        try:
+            yield gmsh
+        finally:
+            gmsh.model.remove()
+    finally:
+        if own:
+            gmsh.finalize()
+
+
 def gmsh_mesh(kind: str = "ring", n: int = 8):
     """A structured, all-valid hex mesh generated with Gmsh: points (N, 3), hexes (M, 8) in VTK order.
 
@@ -110,13 +134,7 @@ def gmsh_mesh(kind: str = "ring", n: int = 8):
     n : int
         Elements per edge (the ring has 2n x n x 2n hexes; the box n^3).
     """
-    gmsh = _gmsh()
-    own = not gmsh.isInitialized()
-    if own:
-        gmsh.initialize(["-noenv"], readConfigFiles=False)
-    gmsh.option.setNumber("General.Terminal", 0)
-    try:
-        gmsh.model.add(f"hexsos-{kind}")
+    with gmsh_model(f"hexsos-{kind}") as gmsh:
         g = gmsh.model.geo
         if kind == "box":
             p = [g.addPoint(*c) for c in [(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0)]]
@@ -147,10 +165,6 @@ def gmsh_mesh(kind: str = "ring", n: int = 8):
         g.synchronize()
         gmsh.model.mesh.generate(3)
         return _hexes_from_gmsh(gmsh)
-    finally:
-        gmsh.model.remove()
-        if own:
-            gmsh.finalize()
 
 
 def mixed_msh(path, *, order: int = 1, incomplete: bool = True, size: float = 0.34, damage: float = 0.0,
@@ -175,13 +189,7 @@ def mixed_msh(path, *, order: int = 1, incomplete: bool = True, size: float = 0.
     -------
     dict : Gmsh element type name -> count.
     """
-    gmsh = _gmsh()
-    own = not gmsh.isInitialized()
-    if own:
-        gmsh.initialize(["-noenv"], readConfigFiles=False)
-    gmsh.option.setNumber("General.Terminal", 0)
-    try:
-        gmsh.model.add("hexsos-mixed")
+    with gmsh_model("hexsos-mixed") as gmsh:
         occ = gmsh.model.occ
         hexvol = occ.addBox(0, 0, 0, 1, 1, 1)
         tetvol = occ.addBox(1, 0, 0, 1, 1, 1)
@@ -217,10 +225,6 @@ def mixed_msh(path, *, order: int = 1, incomplete: bool = True, size: float = 0.
                   for t in gmsh.model.mesh.getElementTypes(3)}
         gmsh.write(str(path))
         return counts
-    finally:
-        gmsh.model.remove()
-        if own:
-            gmsh.finalize()
 
 
 def _hexes_from_gmsh(gmsh):
