@@ -68,6 +68,36 @@ def gmsh_qualities(points, cells, *, repeat: int = 1):
         gmsh.finalize()
 
 
+def gmsh_det_at(points, name, conn, pcoords):
+    """Gmsh's own det J (``getJacobian``) of each cell ``conn[i]`` (VTK order) at its point ``pcoords[i]`` (VTK's
+    parametric coordinates), in our units (divided by ``gmsh_factor``)."""
+    import gmsh
+
+    from hexsos_plugins.elements import ELEMENTS
+
+    el = ELEMENTS[name]
+    conn = np.asarray(conn, dtype=np.int64)
+    r, s, t = np.asarray(pcoords, float).T
+    local = {"cube": lambda: np.c_[2 * r - 1, 2 * s - 1, 2 * t - 1], "tet": lambda: np.c_[r, s, t],
+             "prism": lambda: np.c_[r, s, 2 * t - 1],
+             "pyramid": lambda: np.c_[(2 * r - 1) * (1 - t), (2 * s - 1) * (1 - t), t]}[el.domain]()
+    gmsh.initialize(["-noenv"], readConfigFiles=False)
+    try:
+        gmsh.option.setNumber("General.Terminal", 0)
+        gmsh.model.add("det-at")
+        gmsh.model.addDiscreteEntity(3, 1)
+        gmsh.model.mesh.addNodes(3, 1, np.arange(1, len(points) + 1), np.asarray(points, float).ravel())
+        tags = np.arange(1, len(conn) + 1)
+        gmsh.model.mesh.addElementsByType(1, el.gmsh_type, tags, (conn[:, np.argsort(el.gmsh_to_vtk)] + 1).ravel())
+        out = np.empty(len(conn))
+        for i, tag in enumerate(tags):
+            _, d, _ = gmsh.model.mesh.getJacobian(int(tag), local[i].tolist())
+            out[i] = d[0]
+        return out / el.gmsh_factor
+    finally:
+        gmsh.finalize()
+
+
 def compare_set(label, X, repeat):
     """Gmsh against us on hexes X (M, 8, 3): a dict of arrays and numbers."""
     from hexsos_plugins import check

@@ -3,6 +3,13 @@
 Independent of hexsos's registry and kernel: VTK gives dN/dpcoords at the sample points, numpy's determinant
 gives det J; pyramids use det J / (1 - t)^2, sampled below the apex. A grid over the reference element, then
 rounds of zooming around the best points. Used by the comparison harness (experiment 8) and by the tests.
+
+The quadratic pyramids are sampled on *Gmsh's* shape functions (getBasisFunctions "GradLagrange"): VTK has no
+14-node pyramid, and its 13-node one interpolates differently inside the cell than the pyramid space hexsos
+follows (Gmsh's; see hexsos_plugins.elements). Gmsh's reference pyramid (u, v, w), base [-1, 1]^2, is reached
+from VTK's collapsed cube by u = (2 r - 1)(1 - t), v = (2 s - 1)(1 - t), w = t; the measure's columns are
+2 x_u, 2 x_v and x_u + x_v + x_w. They are sampled up to t = 1 - 1e-10: the measure of a quadratic pyramid has a
+different limit along every direction into the apex.
 """
 
 from functools import lru_cache
@@ -15,7 +22,16 @@ CLASSES = {
     "hexahedron20": "vtkQuadraticHexahedron", "hexahedron27": "vtkTriQuadraticHexahedron",
 }
 DOMAIN = {"tetra": "tet", "tetra10": "tet", "pyramid": "pyramid", "wedge": "prism", "wedge15": "prism",
-          "wedge18": "prism", "hexahedron": "cube", "hexahedron20": "cube", "hexahedron27": "cube"}
+          "wedge18": "prism", "hexahedron": "cube", "hexahedron20": "cube", "hexahedron27": "cube",
+          "pyramid13": "cube", "pyramid14": "cube"}
+# Gmsh's quadratic pyramids: type id and, for each node in meshio's order, the Gmsh node it is (the 13-node one in
+# VTK's order: Gmsh numbers the edges 01, 03, 04, 12, 14, 23, 24, 34, VTK 01, 12, 23, 30, 04, 14, 24, 34; meshio
+# keeps the 14-node one, which VTK lacks, in Gmsh's order)
+GMSH_PYRAMIDS = {"pyramid13": (19, [0, 1, 2, 3, 4, 5, 8, 10, 6, 7, 9, 11, 12]), "pyramid14": (14, list(range(14)))}
+_TOP = 1.0 - 1e-10
+#: How far a sampled value may lie off det J by the sampler's own rounding, relative to the cell's scale: Gmsh's
+#: pyramid basis near the apex errs by about 1e-10 (measured against exact rational arithmetic); VTK's by ulps.
+ROUNDING = {"pyramid13": 1e-9, "pyramid14": 1e-9}
 
 
 @lru_cache(maxsize=None)
@@ -25,7 +41,44 @@ def _cell(name):
     return getattr(dm, CLASSES[name])()
 
 
+def _gmsh_reference(name):
+    import gmsh
+
+    gtype, perm = GMSH_PYRAMIDS[name]
+    with _gmsh_session(gmsh):
+        ref = np.asarray(gmsh.model.mesh.getElementProperties(gtype)[4]).reshape(-1, 3)[perm]
+    u, v, w = ref.T
+    with np.errstate(invalid="ignore", divide="ignore"):
+        r = np.where(w < 1, (u / (1 - w) + 1) / 2, 0.0)
+        s = np.where(w < 1, (v / (1 - w) + 1) / 2, 0.0)
+    return np.c_[r, s, w]
+
+
+class _gmsh_session:
+    """Gmsh initialized for the duration (left as found when it already was)."""
+
+    def __init__(self, gmsh):
+        self.gmsh = gmsh
+
+    def __enter__(self):
+        self.owner = not self.gmsh.isInitialized()
+        if self.owner:
+            self.gmsh.initialize([], readConfigFiles=False, interruptible=False)
+            self.gmsh.option.setNumber("General.Terminal", 0)
+
+    def __exit__(self, *exc):
+        if self.owner:
+            self.gmsh.finalize()
+
+
 def reference_nodes(name):
+    if name in GMSH_PYRAMIDS:
+        X = _gmsh_reference(name)
+        X[4] = (0.5, 0.5, 1.0)
+        for k in range(5, len(X)):  # the mid-edge nodes to the apex (t = 1/2), on the straight edges
+            if X[k, 2] == 0.5:
+                X[k, :2] = (X[k, :2] + 0.5) / 2
+        return X
     c = _cell(name)
     n = c.GetNumberOfPoints()
     pc = c.GetParametricCoords()
@@ -35,8 +88,23 @@ def reference_nodes(name):
     return X
 
 
+def _gmsh_derivatives(name, pts):
+    import gmsh
+
+    gtype, perm = GMSH_PYRAMIDS[name]
+    pts = np.asarray(pts, float)
+    r, s, t = pts.T
+    uvw = np.c_[(2 * r - 1) * (1 - t), (2 * s - 1) * (1 - t), t]
+    with _gmsh_session(gmsh):
+        _, g, _ = gmsh.model.mesh.getBasisFunctions(gtype, uvw.ravel().tolist(), "GradLagrange")
+    g = np.asarray(g).reshape(len(pts), len(perm), 3)[:, perm]  # d N / d (u, v, w), VTK node order
+    return np.stack([2 * g[..., 0], 2 * g[..., 1], g[..., 0] + g[..., 1] + g[..., 2]], axis=-1)
+
+
 def derivatives(name, pts):
-    """dN/dpcoords (K, n, 3) at pts (K, 3) from VTK."""
+    """dN/dpcoords (K, n, 3) at pts (K, 3) from VTK (quadratic pyramids: the measure's columns, from Gmsh)."""
+    if name in GMSH_PYRAMIDS:
+        return _gmsh_derivatives(name, pts)
     c = _cell(name)
     n = c.GetNumberOfPoints()
     out = np.empty((len(pts), n, 3))
@@ -75,6 +143,8 @@ def grid(name, n):
     dom = DOMAIN[name]
     if dom == "pyramid":
         G[:, 2] *= 0.5
+    if name in GMSH_PYRAMIDS:
+        G[:, 2] = np.minimum(G[:, 2], _TOP)
     return G[_inside(dom, G + 0.0)]
 
 
@@ -97,6 +167,8 @@ def dense_min(name, X, *, n=13, zooms=8, starts=3, shrink=0.25):
         for _ in range(zooms):
             for m in range(M):
                 cand = np.clip(p[m] + h * T, 0, 1)
+                if name in GMSH_PYRAMIDS:
+                    cand[:, 2] = np.minimum(cand[:, 2], _TOP)
                 if dom == "pyramid":
                     cand[:, 2] = np.clip(cand[:, 2], 0, 0.5)
                 cand = cand[_inside(dom, cand)]

@@ -13,9 +13,9 @@ For people who script Gmsh::
         repair_model(margin=1e-3)   # moves the nodes of the Gmsh model, re-checks, re-posts the views
 
 Every 3-D element type of :mod:`hexsos_plugins.elements` is checked: tetrahedra, pyramids, prisms and
-hexahedra, linear and quadratic (Gmsh types 4, 11, 7, 6, 18, 13, 5, 17, 12), their nodes reordered from
-Gmsh's numbering to VTK's; other 3-D types (13- and 14-node pyramids, orders above 2) are counted as not
-checked. Every entity of the current model is read; node tags may be any positive integers (sparse,
+hexahedra, linear and quadratic (Gmsh types 4, 11, 7, 19, 14, 6, 18, 13, 5, 17, 12), their nodes reordered
+from Gmsh's numbering to VTK's (the 14-node pyramid, which VTK lacks, keeps Gmsh's); other 3-D types (orders
+above 2) are counted as not checked. Every entity of the current model is read; node tags may be any positive integers (sparse,
 unsorted): they are mapped to a dense array and back.
 
 det J is measured on VTK's reference elements (hexahedra: the parameter cube [0, 1]^3): Gmsh's own
@@ -101,7 +101,7 @@ class GmshCells:
     element_tags : (M,) uint64, the Gmsh tag of each checked element, blocks in the order of ``cells``
     model : str, the name of the Gmsh model they come from
     skipped : dict, Gmsh element type name -> count of 3-D elements of types hexsos does not check (e.g.
-        13- and 14-node pyramids); their nodes are in ``points`` and flagged in ``skipped_nodes``
+        third-order elements); their nodes are in ``points`` and flagged in ``skipped_nodes``
     skipped_nodes : (N,) bool, nodes of skipped elements (a repair keeps them fixed)
     """
 
@@ -154,7 +154,7 @@ def model_cells() -> GmshCells:
 
     Every type of :data:`hexsos_plugins.elements.ELEMENTS` (tetrahedra, pyramids, prisms, hexahedra, linear
     and quadratic, complete and incomplete) is read with its nodes reordered from Gmsh's numbering to VTK's;
-    3-D elements of other types (13- and 14-node pyramids, higher orders) are counted in ``skipped``.
+    3-D elements of other types (orders above 2) are counted in ``skipped``.
 
     Raises
     ------

@@ -15,7 +15,7 @@ import tempfile
 
 import numpy as np
 
-from .errors import DependencyError, MeshWriteError
+from .errors import DependencyError, MeshWriteError, NoHexahedraError
 
 __all__ = ["add_parser", "run", "plot_history", "plot_histogram", "other_cells"]
 
@@ -120,6 +120,11 @@ def run(args) -> int:
         if not os.access(directory, os.W_OK):
             raise MeshWriteError(f"{target}: cannot write, the directory {directory} is not writable")
     mesh, orient = read_mesh(args.mesh, args.fix_orientation)
+    if mesh.n_hexes == 0:
+        found = ", ".join(f"{n} {t}" for t, n in mesh.counts_by_type().items())
+        raise NoHexahedraError(f"{args.mesh}: repair moves the nodes of hexahedral meshes (linear tetrahedra, prisms "
+                               f"and pyramids ride along; quadratic cells keep their nodes): expected 8-node "
+                               f"hexahedra, found {found}; `hexsos check` reports on every cell")
     cells = other_cells(mesh)
     method, kernel_method = args.method, args.kernel_method
     if method in ("auto", "sos"):

@@ -10,6 +10,8 @@ name           VTK id Gmsh   nodes   reference element (parametric coordinates r
 tetra          10     4      4       unit simplex r, s, t >= 0, r + s + t <= 1
 tetra10        24     11     10      unit simplex
 pyramid        14     7      5       base [0, 1]^2 at t = 0, apex at t = 1 (see below)
+pyramid13      27     19     13      the same (VTK's collapsed cube: every (r, s, 1) is the apex)
+pyramid14      --     14     14      the same; VTK has no 14-node pyramid: Gmsh's node order, as meshio keeps it
 wedge          13     6      6       unit triangle (r, s) times [0, 1] (t)
 wedge15        26     18     15      unit triangle times [0, 1]
 wedge18        32     13     18      unit triangle times [0, 1]
@@ -21,7 +23,9 @@ hexahedron27   29     12     27      [0, 1]^3
 ``voxel`` (VTK 11) is an axis-aligned hexahedron with its nodes in lexicographic order (x fastest); readers
 turn it into a ``hexahedron`` with :data:`VOXEL_TO_VTK`.
 
-Node order: VTK's, for every type (``ELEMENTS[name].nodes`` lists each node's parametric coordinates).
+Node order: VTK's, for every type VTK has (``ELEMENTS[name].nodes`` lists each node's parametric coordinates);
+``pyramid14``, which VTK lacks, keeps Gmsh's (corners, the edges 01, 03, 04, 12, 14, 23, 24, 34, the base
+centre), as meshio does.
 A cell is *positively oriented* when det J > 0 with VTK's shape functions; for the wedge that is the
 node order in which the triangle (0, 1, 2) turns counter-clockwise seen from the triangle (3, 4, 5), the
 same as Gmsh's prism (measured with VTK 9: ``vtkMeshQuality`` volume and ``vtkCellValidator`` agree).
@@ -34,12 +38,24 @@ polynomial space and node positions (Lagrange interpolation), so exact arithmeti
 * tetra: P1; tetra10: P2; wedge: P1(r, s) x P1(t); wedge18: P2(r, s) x P2(t); wedge15: the serendipity
   space P2(r, s) x P1(t) + P1(r, s) t^2; hexahedron: Q1; hexahedron27: Q2; hexahedron20: the serendipity
   space (Q2 without the 7 monomials with two or three squared variables).
-* pyramid: VTK's, a hexahedron whose top face collapses to the apex: N_0..3 = bilinear(r, s) (1 - t),
-  N_4 = t. Its det J is (1 - t)^2 times a polynomial, so it is 0 at the apex of *every* pyramid and says
-  nothing there. hexsos measures pyramids by ``det J / (1 - t)^2`` (the rational pyramid space of
-  Bergot et al. and Johnen et al., as Gmsh): the determinant of the Jacobian whose r and s columns are
-  divided by (1 - t) (exactly: those derivatives carry the factor). For a pyramid it is independent of t,
-  and bilinear in (r, s) (the r^2 and s^2 terms cancel), so its minimum lies at a base corner.
+* pyramids: the pyramid space of Bergot et al. (as Gmsh), written in VTK's collapsed-cube coordinates
+  (r, s, t) in [0, 1]^3, whose top face t = 1 is the apex: order p is spanned by r^i s^j (1 - t)^max(i, j) t^k,
+  i, j <= p, k <= p - max(i, j) (the point of the true pyramid is (r (1 - t), s (1 - t), t), and these are
+  its rational functions x^i y^j / (1 - t)^max(i, j) t^k). p = 1 is VTK's linear pyramid (N_0..3 =
+  bilinear(r, s) (1 - t), N_4 = t); p = 2 is Gmsh's 14-node pyramid; the 13-node pyramid is the 14-node one
+  whose base-centre node sits where the base's 8-node serendipity quadrilateral puts it (-1/4 of each base
+  corner, 1/2 of each base mid-edge node): Gmsh's 13-node pyramid, measured equal with getBasisFunctions.
+  VTK's vtkQuadraticPyramid (VTK 9.7) interpolates the same 13 nodes differently *inside* the cell (the same
+  on every face; its functions hold r^2 s^2 t (1 - t), outside this space): hexsos follows Gmsh and the
+  pyramid space there, and says so in the README.
+  det J in these coordinates is (1 - t)^2 times the *measure* det J_pyr, the Jacobian determinant of the
+  map with respect to the true pyramid's coordinates (x_r and x_s carry the factor 1 - t, exactly, since
+  the top face maps to one point): VTK's det J is 0 at the apex of *every* pyramid and says nothing there.
+  hexsos measures pyramids by ``det J / (1 - t)^2`` (the measure of Bergot et al. and Johnen et al., as
+  Gmsh): the determinant of the Jacobian whose r and s columns are divided by (1 - t). For a linear pyramid
+  it is independent of t and bilinear in (r, s) (the r^2 and s^2 terms cancel), so its minimum lies at a
+  base corner; for the quadratic ones it is a polynomial of degree 5, 5, 3 in (r, s, t), searched over
+  the whole cube.
 
 det J is the determinant of ``d x / d (r, s, t)`` (columns the derivatives along r, s, t); the unit
 reference cell (nodes at their parametric coordinates) has det J = 1 (pyramid: the measure 1 when the apex
@@ -152,7 +168,8 @@ class Element:
     domain : ``"cube"``, ``"tet"``, ``"prism"`` or ``"pyramid"``
     order : geometric order (1 linear, 2 quadratic)
     nodes : (n, 3) parametric coordinates of the nodes (exact, as Fractions), VTK order
-    corners : number of corner nodes (the first ones)
+    corners : number of corner nodes (the first ones) whose det J values a corner check sees (pyramids: the 4 base
+        corners; the measure has no single value at the apex)
     faces : corner-node faces, each ordered so that its right-hand normal points out of a positive cell
     gmsh_to_vtk : for each VTK node the Gmsh node it is (``vtk = gmsh[:, gmsh_to_vtk]``)
     gmsh_factor : Gmsh's ``minDetJac`` of a cell = our min det J times this (its reference cells differ)
@@ -288,6 +305,9 @@ _WEDGE15_EDGES = ((_H, 0, 0), (_H, _H, 0), (0, _H, 0), (_H, 0, 1), (_H, _H, 1), 
                   (0, 1, _H))
 _WEDGE18_FACES = ((_H, 0, _H), (_H, _H, _H), (0, _H, _H))
 _PYR5 = ((0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0), (0, 0, 1))
+# VTK's mid-edge nodes: the base edges 01, 12, 23, 30, then the edges to the apex from 0, 1, 2, 3 (collapsed cube)
+_PYR13_EDGES = ((_H, 0, 0), (1, _H, 0), (_H, 1, 0), (0, _H, 0), (0, 0, _H), (1, 0, _H), (1, 1, _H), (0, 1, _H))
+_PYR14_CENTRE = ((_H, _H, 0),)
 
 _HEX_FACES = ((0, 3, 2, 1), (4, 5, 6, 7), (0, 1, 5, 4), (2, 3, 7, 6), (0, 4, 7, 3), (1, 2, 6, 5))
 _TET_FACES = ((0, 2, 1), (0, 1, 3), (0, 3, 2), (1, 2, 3))
@@ -307,20 +327,48 @@ def _wedge_space(tri_deg, t_deg):
     return [(i, j, k) for i, j in _tri(tri_deg) for k in range(t_deg + 1)]
 
 
-def _pyramid_basis():
+def _pyramid_basis(p):
+    """Bergot's pyramid space of order p in collapsed-cube coordinates: r^i s^j (1 - t)^m t^k, m = max(i, j),
+    k <= p - m."""
     omt = {(0, 0, 0): _F(1), (0, 0, 1): _F(-1)}  # 1 - t
-    return tuple([_mul(omt, _mono(a, b, 0)) for a, b in ((0, 0), (1, 0), (0, 1), (1, 1))] + [_mono(0, 0, 1)])
+    out = []
+    for i in range(p + 1):
+        for j in range(p + 1):
+            m = max(i, j)
+            f = _mono(i, j, 0)
+            for _ in range(m):
+                f = _mul(f, omt)
+            out += [_mul(f, _mono(0, 0, k)) for k in range(p - m + 1)]
+    return tuple(out)
+
+
+def _pyramid13_basis():
+    """The 13-node pyramid's shape functions: the 14-node pyramid's, its base-centre node (VTK order: node 13)
+    eliminated by the base's serendipity quadrilateral (centre = -1/4 each base corner + 1/2 each base mid-edge)."""
+    nodes = _nodes(_PYR5, _PYR13_EDGES, _PYR14_CENTRE)
+    basis = _pyramid_basis(2)
+    V = [[_eval_exact(b, x) for b in basis] for x in nodes]
+    C = _solve_exact(V, [[_F(int(i == j)) for j in range(14)] for i in range(14)])
+    N14 = [_add(*(_scale(basis[k], C[k][i]) for k in range(14))) for i in range(14)]
+    weight = [_F(-1, 4)] * 4 + [_F(0)] + [_F(1, 2)] * 4 + [_F(0)] * 4  # the centre's value from nodes 0..12
+    return tuple(_add(N14[i], _scale(N14[13], weight[i])) for i in range(13))
 
 
 _IDENTITY = {n: tuple(range(n)) for n in (4, 5, 6, 8)}
 _HEX20_G2V = (0, 1, 2, 3, 4, 5, 6, 7, 8, 11, 13, 9, 16, 18, 19, 17, 10, 12, 14, 15)
+_PYR13_G2V = (0, 1, 2, 3, 4, 5, 8, 10, 6, 7, 9, 11, 12)  # Gmsh's edges: 01, 03, 04, 12, 14, 23, 24, 34
 
 ELEMENTS = {
     "tetra": Element("tetra", 10, 4, "tet", 1, _nodes(_TET4), 4, _TET_FACES, _monomial_space(_p(1)), _IDENTITY[4], 1.0),
     "tetra10": Element("tetra10", 24, 11, "tet", 2, _nodes(_TET4, _TET10_EDGES), 4, _TET_FACES,
                        _monomial_space(_p(2)), (0, 1, 2, 3, 4, 5, 6, 7, 9, 8), 1.0),
-    "pyramid": Element("pyramid", 14, 7, "pyramid", 1, _nodes(_PYR5), 4, _PYR_FACES, _pyramid_basis(), _IDENTITY[5],
+    "pyramid": Element("pyramid", 14, 7, "pyramid", 1, _nodes(_PYR5), 4, _PYR_FACES, _pyramid_basis(1), _IDENTITY[5],
                        0.25),
+    "pyramid13": Element("pyramid13", 27, 19, "pyramid", 2, _nodes(_PYR5, _PYR13_EDGES), 4, _PYR_FACES,
+                         _pyramid13_basis(), _PYR13_G2V, 0.25),
+    "pyramid14": Element("pyramid14", -1, 14, "pyramid", 2,
+                         _nodes(_PYR5, [_PYR13_EDGES[k] for k in (0, 3, 4, 1, 5, 2, 6, 7)], _PYR14_CENTRE), 4,
+                         _PYR_FACES, _pyramid_basis(2), tuple(range(14)), 0.25),
     "wedge": Element("wedge", 13, 6, "prism", 1, _nodes(_WEDGE6), 6, _WEDGE_FACES, _monomial_space(_wedge_space(1, 1)),
                      _IDENTITY[6], 0.5),
     "wedge15": Element("wedge15", 26, 18, "prism", 2, _nodes(_WEDGE6, _WEDGE15_EDGES), 6, _WEDGE_FACES,

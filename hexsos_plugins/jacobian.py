@@ -10,6 +10,7 @@ type            det J's factors (degree)         coefficients          as Gmsh c
 tetra           tet (0)                          1                     tet 3p - 3
 tetra10         tet (3)                          20
 pyramid         line (2) x line (2) x line (0)   9 (independent of t)  pyramid 3p - 3
+pyramid13, 14   line (5) x line (5) x line (3)   144
 wedge           tri (1) x line (2)               9                     prism 3p - 1
 wedge15, 18     tri (4) x line (5)               90
 hexahedron      line (2)^3                       27                    hex 3p - 1
@@ -24,7 +25,9 @@ gives the children's coefficients by fixed matrices with non-negative dyadic ent
 
 How the coefficients are computed (:func:`formulation`): the geometry is a Bernstein map too (its control
 points are fixed dyadic combinations of the nodes; serendipity cells' maps lie in the complete space), so each
-column of J is a Bernstein polynomial whose coefficients are scaled differences of neighbouring control points,
+column of J is a Bernstein polynomial whose coefficients are scaled differences of neighbouring control points
+(quadratic pyramids: the r and s columns divided by 1 - t, which rescales them by n / (n - k), see
+:func:`_divide_one_minus_t`),
 and det J = x_r . (x_s x x_t) follows by *products* of Bernstein polynomials, whose weights are positive and sum
 to 1 per coefficient. No inverse transform, no amplification: the rounding of every coefficient is a small
 multiple of u = 2^-53 times ``perm(A)``, the permanent of the largest |column coefficient| per component and
@@ -57,6 +60,8 @@ _FACTORS = {
     "tetra": (("tet", 0),),
     "tetra10": (("tet", 3),),
     "pyramid": (("line", 2), ("line", 2), ("line", 0)),
+    "pyramid13": (("line", 5), ("line", 5), ("line", 3)),
+    "pyramid14": (("line", 5), ("line", 5), ("line", 3)),
     "wedge": (("tri", 1), ("line", 2)),
     "wedge15": (("tri", 4), ("line", 5)),
     "wedge18": (("tri", 4), ("line", 5)),
@@ -66,12 +71,15 @@ _FACTORS = {
 }
 
 
-# The geometry of each type as a Bernstein polynomial map on the same factors (None: the pyramid, whose
-# measure's columns are given directly by node differences, see _pyramid_columns).
+# The geometry of each type as a Bernstein polynomial map on the same factors (None: the linear pyramid, whose
+# measure's columns are given directly by node differences, see _pyramid_columns; the quadratic pyramids are
+# maps on the collapsed cube, their r and s columns divided by 1 - t, see _divide_one_minus_t).
 _GEOMETRY = {
     "tetra": (("tet", 1),),
     "tetra10": (("tet", 2),),
     "pyramid": None,
+    "pyramid13": (("line", 2), ("line", 2), ("line", 2)),
+    "pyramid14": (("line", 2), ("line", 2), ("line", 2)),
     "wedge": (("tri", 1), ("line", 1)),
     "wedge15": (("tri", 2), ("line", 2)),
     "wedge18": (("tri", 2), ("line", 2)),
@@ -299,6 +307,27 @@ def _pyramid_columns():
     return [col_r, col_s, col_t]
 
 
+def _divide_one_minus_t(column, C):
+    """A column x_d (d = r, s) of a map on the collapsed cube, divided by (1 - t): a Bernstein polynomial of
+    degree n in t vanishing at t = 1 (its coefficients there are differences of the apex's control points,
+    equal exactly) divided by (1 - t) has degree n - 1 and coefficients b_k n / (n - k) (B^n_k / (1 - t) =
+    n / (n - k) B^{n-1}_k). Exact: the dropped entries are checked to be differences of equal rows of C."""
+    factors, entries = column
+    (kind, n) = factors[2]
+    assert kind == "line" and n >= 1
+    combos = _combos(factors)
+    out_index = _flat(factors[:2] + ((kind, n - 1),))
+    out = []
+    for (a, b, w), combo in zip(entries, combos):
+        k = combo[2][0]
+        if k == n:
+            assert C[a] == C[b], "the top face of a pyramid is not one point"
+            continue
+        out.append((a, b, w * _F(n, n - k), out_index[combo[:2] + ((k,),)]))
+    out.sort(key=lambda e: e[3])
+    return (factors[:2] + ((kind, n - 1),), [(a, b, w) for a, b, w, _ in out])
+
+
 @lru_cache(maxsize=None)
 def formulation(name: str) -> dict:
     """How the kernel computes det J's Bernstein coefficients for a type, exactly (rationals):
@@ -319,6 +348,8 @@ def formulation(name: str) -> dict:
     else:
         C = _geometry_control(name, g)
         cols = _geometry_columns(g, tuple(slots))
+        if el.domain == "pyramid":  # the measure's columns: x_r / (1 - t), x_s / (1 - t), x_t
+            cols = [_divide_one_minus_t(cols[0], C), _divide_one_minus_t(cols[1], C), cols[2]]
     cross = product_table(cols[1][0], cols[2][0])
     fx = tuple((k, a + b) for (k, a), (_, b) in zip(cols[1][0], cols[2][0]))
     dot = product_table(cols[0][0], fx)
@@ -352,8 +383,8 @@ class JacobianSpace:
     h: np.ndarray  # (ng,)
 
 
-def _domain(elem_domain):
-    if elem_domain == "cube":
+def _domain(elem_domain, factors):
+    if elem_domain == "cube" or (elem_domain == "pyramid" and factors[2][1] > 0):  # quadratic pyramids: the cube
         G = [[-1, 0, 0], [1, 0, 0], [0, -1, 0], [0, 1, 0], [0, 0, -1], [0, 0, 1]]
         h = [0, 1, 0, 1, 0, 1]
     elif elem_domain == "tet":
@@ -362,7 +393,7 @@ def _domain(elem_domain):
     elif elem_domain == "prism":
         G = [[-1, 0, 0], [0, -1, 0], [1, 1, 0], [0, 0, -1], [0, 0, 1]]
         h = [0, 0, 1, 0, 1]
-    else:  # pyramid: the measure does not depend on t; it is searched on the base square (t = 0)
+    else:  # linear pyramid: the measure does not depend on t; it is searched on the base square (t = 0)
         G = [[-1, 0, 0], [1, 0, 0], [0, -1, 0], [0, 1, 0], [0, 0, -1], [0, 0, 1]]
         h = [0, 1, 0, 1, 0, 0]
     return np.array(G, dtype=np.float64), np.array(h, dtype=np.float64)
@@ -420,7 +451,7 @@ def space(name: str) -> JacobianSpace:
     M = np.ones((1, 1))
     for t in tabs:  # for the polish only (floats suffice)
         M = np.kron(M, np.array([[float(v) for v in r] for r in t["M"]]))
-    G, h = _domain(el.domain)
+    G, h = _domain(el.domain, factors)
     return JacobianSpace(
         name=name, factors=factors, slots=tuple(slots), sizes=sizes, nb=nb, n_nodes=el.n_nodes, S=S,
         exact_S=[[Sm for Sm, _, _ in t["children"]] for t in tabs], nchildren=nchildren, child_maps=maps,

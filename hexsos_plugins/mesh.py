@@ -38,12 +38,13 @@ triangle 3-4-5 above it (node k + 3 above node k)::
 Which blocks are checked
 ------------------------
 * Every block of a type in :data:`hexsos_plugins.elements.ELEMENTS` (``tetra``, ``tetra10``, ``pyramid``,
-  ``wedge``, ``wedge15``, ``wedge18``, ``hexahedron``, ``hexahedron20``, ``hexahedron27``), as it is.
+  ``pyramid13``, ``pyramid14``, ``wedge``, ``wedge15``, ``wedge18``, ``hexahedron``, ``hexahedron20``,
+  ``hexahedron27``), as it is (``pyramid14``, which VTK lacks, in Gmsh's node order, as meshio keeps it).
 * ``voxel`` blocks (VTK cell type 11, nodes in lexicographic order, x fastest): converted to
   ``hexahedron`` with :data:`~hexsos_plugins.elements.VOXEL_TO_VTK`; :attr:`Mesh.voxel_rows` says which
   hexahedra came from voxels. meshio 5.3.5 has no voxel cell type, so such blocks only come from
   hexsos's readers; they are kept as ``voxel`` in ``source``.
-* Other 3-D types (``pyramid13``, ``pyramid14``, ``polyhedron``, ``hexahedron24``, higher orders, ...) are
+* Other 3-D types (``polyhedron``, ``hexahedron24``, orders above 2, ...) are
   kept in ``source`` and written back, but not checked: :attr:`Mesh.skipped` counts them.
 * 2-D and 1-D cells are kept in ``source`` only.
 

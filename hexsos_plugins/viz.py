@@ -45,6 +45,8 @@ def _grid(pv, points, blocks):
 
     parts, types = [], []
     for t, conn in blocks:
+        if t == "pyramid14":  # VTK has no 14-node pyramid: drawn as its 13-node one (base centre left out)
+            t, conn = "pyramid13", conn[:, list(ELEMENTS["pyramid13"].gmsh_to_vtk)]
         parts.append(np.hstack([np.full((len(conn), 1), conn.shape[1]), conn]).ravel())
         types.append(np.full(len(conn), ELEMENTS[t].vtk_type, dtype=np.uint8))
     return pv.UnstructuredGrid(np.concatenate(parts), np.concatenate(types), np.asarray(points, float))

@@ -229,7 +229,8 @@ def _pyramid14_as_13(m: meshio.Mesh, notes: list) -> None:
             b.type = "pyramid13"
             n += len(b.data)
     notes.append(f"{n} pyramid14 cells written as 13-node pyramids (VTK has no 14-node pyramid): the node at "
-                 "the centre of each base is dropped")
+                 "the centre of each base is dropped (the cell changes unless that node sat where the base's "
+                 "8-node quadrilateral puts its centre)")
 
 
 def _sanitize_dtypes(m: meshio.Mesh, notes: list) -> None:

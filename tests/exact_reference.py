@@ -19,6 +19,8 @@ DEGREES = {
     "tetra": (("tet", 0),),
     "tetra10": (("tet", 3),),
     "pyramid": (("line", 2), ("line", 2), ("line", 0)),
+    "pyramid13": (("line", 5), ("line", 5), ("line", 3)),
+    "pyramid14": (("line", 5), ("line", 5), ("line", 3)),
     "wedge": (("tri", 1), ("line", 2)),
     "wedge15": (("tri", 4), ("line", 5)),
     "wedge18": (("tri", 4), ("line", 5)),

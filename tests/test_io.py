@@ -568,11 +568,11 @@ BAD_INPUTS = [
     ("nan.vtk", vtk_ascii().replace("1 1 1", "nan 1 1"), InvalidInputError, ["point 6", "finite"]),
     ("range.vtk", vtk_ascii().replace("8 0 1 2 3 4 5 6 7", "8 0 1 2 3 4 5 6 99"), InvalidInputError,
      ["point 99", "8 points"]),
-    ("pyramid13.vtk", vtk_ascii().replace("CELLS 2 14\n8 0 1 2 3 4 5 6 7\n4 0 1 3 4",
-                                           "CELLS 1 14\n13 0 1 2 3 4 5 6 7 0 1 2 3 4")
-     .replace("CELL_TYPES 2\n12\n10", "CELL_TYPES 1\n27").replace("CELL_DATA 2\nSCALARS material int 1\n"
+    ("wedge12.vtk", vtk_ascii().replace("CELLS 2 14\n8 0 1 2 3 4 5 6 7\n4 0 1 3 4",
+                                         "CELLS 1 13\n12 0 1 2 3 4 5 6 7 0 1 2 3")
+     .replace("CELL_TYPES 2\n12\n10", "CELL_TYPES 1\n31").replace("CELL_DATA 2\nSCALARS material int 1\n"
                                                                  "LOOKUP_TABLE default\n7 8\n", ""),
-     NoHexahedraError, ["1 pyramid13", "not checked"]),
+     NoHexahedraError, ["1 wedge12", "not checked"]),
     ("quads.vtk", vtk_ascii().replace("CELLS 2 14\n8 0 1 2 3 4 5 6 7\n4 0 1 3 4", "CELLS 2 10\n4 0 1 2 3\n4 4 5 6 7")
      .replace("CELL_TYPES 2\n12\n10", "CELL_TYPES 2\n9\n9"), NoHexahedraError, ["2 quad"]),
 ]

@@ -16,7 +16,7 @@ from hexsos_plugins import check, kernel
 from hexsos_plugins.elements import CELL_TYPES, ELEMENTS
 
 TYPES = list(CELL_TYPES)
-QUADRATIC = {"tetra10", "wedge15", "wedge18", "hexahedron20", "hexahedron27"}
+QUADRATIC = {"tetra10", "wedge15", "wedge18", "hexahedron20", "hexahedron27", "pyramid13", "pyramid14"}
 
 
 def _mirror(name):
@@ -90,7 +90,7 @@ def _exact_points(name, X, r, i, rng, k=6):
         elif el.domain == "prism":
             x[:2] = x[:2] / max(1.0, x[:2].sum())
         pts.append(tuple(Fraction(float(v)).limit_denominator(2**20) for v in x))
-    if el.domain == "pyramid":
+    if name == "pyramid":  # the linear pyramid's measure does not depend on t: its table has degree 0 there
         pts = [(p[0], p[1], Fraction(0)) for p in pts]
     return pts
 
@@ -163,7 +163,7 @@ def test_valid_at_every_node_but_invalid_inside(name):
     rng = np.random.default_rng(11)
     nodes = el.reference_nodes.copy()
     if el.domain == "pyramid":
-        nodes = nodes[:4]  # the measure is not defined at the apex
+        nodes = np.delete(nodes, 4, axis=0)  # the measure has no single value at the apex
     for trial in range(3000):
         if trial % 2:
             X = X0 + 0.04 * rng.standard_normal(X0.shape)
@@ -212,10 +212,11 @@ def test_minimum_against_vtk_dense_sampling(name):
     r = _run(name, X)
     d, p, unique = vtk_oracle.dense_min(name, X)
     scale = r.scale
+    tol = vtk_oracle.ROUNDING.get(name, 0.0) * scale  # the sampler's own rounding (Gmsh's pyramids)
     assert np.all(r.min_det <= d + 1e-12 * scale)  # a minimum is never above a sampled value
     assert np.all(d - r.min_det <= 1e-7 * scale + 1e-3 * np.abs(d - r.min_det).clip(max=0)), (d - r.min_det) / scale
     assert not np.any((r.status == 1) & (d <= 0))
-    assert np.all(r.lower_bound <= d)
+    assert np.all(r.lower_bound <= d + tol)
     close = unique & (np.abs(d - r.min_det) < 1e-9 * scale)
     dist = np.linalg.norm((r.argmin - p)[:, :2 if name == "pyramid" else 3], axis=1)
     assert np.all(dist[close] < 2e-3), dist[close]
@@ -317,7 +318,7 @@ def test_compiled_extension_is_built_from_this_source_and_matches_the_jit():
     assert kernel.implementation() == "aot", "the compiled kernel extension was not built (pip install -e .)"
     from hexsos_plugins import _kernel_aot
 
-    for name in ("hexahedron", "wedge15", "pyramid"):
+    for name in ("hexahedron", "wedge15", "pyramid", "pyramid13"):
         X = _perturbed(name, 40, 0.3, 51)
         P = X.reshape(-1, 3)
         conn = np.arange(P.shape[0]).reshape(X.shape[0], -1)

@@ -162,7 +162,7 @@ def test_from_meshio_collects_hex_blocks_in_order_and_keeps_the_rest():
     [
         ([("triangle", np.array([[0, 1, 2]] * 30)), ("line", np.array([[0, 1]] * 3))], ["30 triangle", "3 line"]),
         ([("quad", np.array([[0, 1, 2, 3]] * 4))], ["4 quad"]),
-        ([("pyramid14", np.zeros((2, 14), dtype=int))], ["2 pyramid14", "not checked"]),
+        ([("tetra20", np.zeros((2, 20), dtype=int))], ["2 tetra20", "not checked"]),
         ([("hexahedron", np.zeros((0, 8), dtype=int)), ("triangle", np.array([[0, 1, 2]]))], ["1 triangle"]),
     ],
 )

@@ -213,7 +213,9 @@ def test_msh_versions_and_gmsh_vtk_hold_the_same_cells(gm, kind):
             assert np.allclose(np.sort(-got[t], axis=0), ref[t], rtol=1e-12, atol=1e-12)
         elif t in got:
             assert np.allclose(got[t], ref[t], rtol=1e-12, atol=1e-12), t
-    assert all(v > 0 for d in ref.values() for v in [d.min()])  # Gmsh's cells are valid at these points
+    # Gmsh's cells are valid at these points, but for its quadratic pyramids, of which it folds a third here (3 of 9
+    # in both orders; Gmsh's own det J agrees: test_node_orders)
+    assert all(v > 0 for t, d in ref.items() for v in [d.min()] if t not in ("pyramid13", "pyramid14"))
 
 
 def test_gmsh_vtk_files_with_linear_prisms_are_reported_mirrored(gm, monkeypatch):
@@ -259,14 +261,16 @@ def test_round_trip_through_every_format_keeps_cells_orders_and_arrays(gm, kind,
         notes = hio.write(out, path)
         back = hio.read(path)
         got = dets_by_type(back)
-        assert got.keys() == ref.keys(), ext
+        # VTK has no 14-node pyramid: VTK files get 13-node ones (the base centre dropped, a note says so)
+        as13 = ext != ".msh" and "pyramid14" in ref
+        want_counts = {("pyramid13" if t == "pyramid14" and as13 else t): c for t, c in src.counts_by_type().items()}
+        assert back.counts_by_type() == want_counts, ext
         for t in ref:
+            if t == "pyramid14" and as13:
+                assert got["pyramid13"].shape == ref[t].shape and any("pyramid14" in s for s in notes)
+                continue
             assert np.array_equal(got[t], ref[t]), (ext, t)
-        assert back.counts_by_type() == src.counts_by_type()
-        skipped = {("pyramid13" if t == "pyramid14" and ext != ".msh" else t): c for t, c in src.skipped.items()}
-        assert back.skipped == skipped, ext
-        if "pyramid14" in src.skipped and ext != ".msh":
-            assert any("pyramid14" in s for s in notes)
+        assert back.skipped == src.skipped == {}, ext
         cd = back.source.cell_data
         for name, values in arrays.items():
             rows = back.hex_blocks if name == "hexonly" else [(b, s, e) for b, _, s, e in back.cell_blocks]
@@ -290,7 +294,7 @@ def test_round_trip_through_every_format_keeps_cells_orders_and_arrays(gm, kind,
 VTK_CELLS = {"tetra": "vtkTetra", "tetra10": "vtkQuadraticTetra", "pyramid": "vtkPyramid", "wedge": "vtkWedge",
              "wedge15": "vtkQuadraticWedge", "wedge18": "vtkBiQuadraticQuadraticWedge",
              "hexahedron": "vtkHexahedron", "hexahedron20": "vtkQuadraticHexahedron",
-             "hexahedron27": "vtkTriQuadraticHexahedron"}
+             "hexahedron27": "vtkTriQuadraticHexahedron", "pyramid13": "vtkQuadraticPyramid"}
 
 
 def vtk_det(cell, X, pc):
@@ -324,6 +328,8 @@ def test_what_hexsos_writes_vtk_reads_with_the_same_det(gm, kind, ext, tmp_path)
     for t, conn in src.cells:
         by_type.setdefault(t, []).append(conn)
     for t, conns in by_type.items():
+        if t in ("pyramid13", "pyramid14"):  # VTK interpolates them otherwise inside (test_node_orders measures it)
+            continue
         el = ELEMENTS[t]
         ids = [i for i in range(grid.GetNumberOfCells()) if grid.GetCellType(i) == el.vtk_type]
         conn = np.concatenate(conns)

@@ -442,3 +442,23 @@ def test_unwritable_output_fails_before_the_repair(tmp_path, capsys, monkeypatch
     monkeypatch.setattr("hexsos_plugins.meshrepair._Optimize.run", lambda *a, **k: calls.append(1))
     assert cli.main(["repair", str(src), "-o", str(tmp_path / "missing" / "out.vtu")]) == 2
     assert "does not exist" in capsys.readouterr().err and calls == []  # refused before any repair work
+
+
+def test_cli_repair_of_a_mesh_without_hexahedra_says_what_it_found(tmp_path, capsys):
+    """A quadratic mesh (Gmsh-made, order 2 serendipity: no 8-node hexahedra): one line naming the cells found,
+    exit 2, no output written; a mesh with hexahedra beside them is repaired (the negative case)."""
+    from hexsos_plugins import cli
+    from hexsos_plugins.examples import mixed_msh
+
+    path = tmp_path / "quadratic.msh"
+    mixed_msh(path, order=2, incomplete=True, damage=0.1, seed=1)
+    out = tmp_path / "out.msh"
+    assert cli.main(["repair", str(path), "-o", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("hexsos: error: ") and len(err.strip().splitlines()) == 1
+    assert "expected 8-node hexahedra" in err and "pyramid13" in err and "hexahedron20" in err
+    assert not out.exists()
+    linear = tmp_path / "linear.msh"
+    mixed_msh(linear, order=1, damage=0.1, seed=1)
+    assert cli.main(["repair", str(linear), "-o", str(out), "--time-limit", "30"]) in (0, 1)
+    assert out.exists() and "expected 8-node hexahedra" not in capsys.readouterr().err

@@ -309,7 +309,7 @@ def _checkable(grid, elements):
     types : (C,) uint8, every cell's VTK type
     """
     types = _cell_types(grid)
-    by_vtk = {el.vtk_type: name for name, el in elements.ELEMENTS.items()}
+    by_vtk = {el.vtk_type: name for name, el in elements.ELEMENTS.items() if el.vtk_type >= 0}
     by_vtk[VTK_VOXEL] = "voxel"
     present = [int(t) for t in dict.fromkeys(types.tolist()) if int(t) in by_vtk]
     if not present:

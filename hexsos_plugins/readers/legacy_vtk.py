@@ -3,8 +3,8 @@ what meshio 5.3.5 rejects or misreads: 8-node cells typed 10 (VTK_TETRA) are rea
 (11) are read as ``voxel`` blocks (which :class:`~hexsos_plugins.mesh.Mesh` converts to VTK order); pixels (8)
 as quads; text after the data is ignored. (meshio's 5.1 reader does not fail on 8-node cells typed 10: it
 silently keeps their last 4 nodes as a tetra; a 5.x file that meshio returns with tetrahedra is therefore
-read again here.) Gmsh 4.15 writes its quadratic pyramids typed 14 with 13 or 14 nodes: they are read as
-``pyramid13`` / ``pyramid14`` (not checked, kept). Cells keep the file's node order, which is VTK's (wedges
+read again here.) Gmsh 4.15 writes its quadratic pyramids typed 14 with 13 or 14 nodes, in Gmsh's node order: they are
+read as ``pyramid13`` (reordered to VTK's) / ``pyramid14`` (Gmsh's order, as meshio keeps it). Cells keep the file's node order, which is VTK's (wedges
 included: no swap).
 """
 
@@ -15,6 +15,7 @@ from pathlib import Path
 import meshio
 import numpy as np
 
+from ..elements import ELEMENTS
 from ._common import _make_block, _ParseError
 from .tokens import _Cursor, _is_number, _numbers
 
@@ -39,6 +40,8 @@ _VTK_CELLS = {
 }
 _GMSH_PYRAMID14 = -14  # not a VTK type: Gmsh's 14-node pyramid as Gmsh writes it into legacy VTK files
 _VTK_CELLS[_GMSH_PYRAMID14] = ("pyramid14", 14)
+_GMSH_PYRAMID13 = -13  # Gmsh's 13-node pyramid typed 14, in Gmsh's node order
+_VTK_CELLS[_GMSH_PYRAMID13] = ("pyramid13", 13)
 _VTK_VARIABLE = {2: "poly_vertex", 4: "poly_line", 6: "triangle_strip", 42: "polyhedron"}
 _PIXEL_TO_QUAD = np.array([0, 1, 3, 2])
 
@@ -236,7 +239,7 @@ def _vtk_blocks(conn, offsets, types, cell_data):
     types = types.copy()
     types[(types == 10) & (sizes == 8)] = 12  # published files type their hexahedra as VTK_TETRA
     # Gmsh 4.15 writes its quadratic pyramids typed 14 (VTK_PYRAMID) with all their 13 / 14 nodes
-    types[(types == 14) & (sizes == 13)] = 27
+    types[(types == 14) & (sizes == 13)] = _GMSH_PYRAMID13
     types[(types == 14) & (sizes == 14)] = _GMSH_PYRAMID14
     for t in np.unique(types):
         t = int(t)
@@ -265,6 +268,8 @@ def _vtk_blocks(conn, offsets, types, cell_data):
             ctype = _VTK_CELLS[t][0]
             if t == 8:
                 data = data[:, _PIXEL_TO_QUAD]
+            elif t == _GMSH_PYRAMID13:
+                data = data[:, list(ELEMENTS["pyramid13"].gmsh_to_vtk)]
             cells.append(_make_block(ctype, data))
         for name, arr in cell_data.items():
             cd[name].append(arr[s:e])
