@@ -1167,3 +1167,26 @@ def scaled_jacobian_chunk(points, conn, ids, start, stop, G, factor, grouped, re
         if reflect and best > 1.0:
             best = 2.0 - best
         out[t] = best
+
+
+@njit(cache=True, nogil=True)
+def det_at_chunk(points, conn, ids, start, stop, dN, out):
+    """det J of the cells ids[start:stop] at one reference point, from dN (n, 3), the shape-function derivatives
+    there (the measure's columns for pyramids): J[a, d] = sum_i dN[i, d] x_i[a]. No rounding bound: a sign test
+    (the orientation of a file's node order), never a certificate."""
+    n = conn.shape[1]
+    E = np.empty((3, 3))
+    for t in range(start, stop):
+        m = ids[t]
+        for a in range(3):
+            for d in range(3):
+                E[a, d] = 0.0
+        for i in range(n):
+            node = conn[m, i]
+            for d in range(3):
+                w = dN[i, d]
+                if w != 0.0:
+                    for a in range(3):
+                        E[a, d] += w * points[node, a]
+        out[t] = (E[0, 0] * (E[1, 1] * E[2, 2] - E[1, 2] * E[2, 1]) - E[0, 1] * (E[1, 0] * E[2, 2] - E[1, 2] * E[2, 0])
+                  + E[0, 2] * (E[1, 0] * E[2, 1] - E[1, 1] * E[2, 0]))

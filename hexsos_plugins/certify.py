@@ -408,6 +408,8 @@ def _to_world(v, k3, *, down: bool):
     with np.errstate(over="ignore", under="ignore", invalid="ignore"):
         w = np.ldexp(v, k3)
         back = np.ldexp(w, -k3)
+    if np.array_equal(back, v):  # every value exact (the usual case): nothing to round, nothing unrepresentable
+        return w, np.zeros(w.shape, dtype=bool)
     inexact = np.isfinite(w) & (back != v)
     over = ~np.isfinite(w) & np.isfinite(v)
     if down:
@@ -686,18 +688,23 @@ def check(points, cells, *, method: str = "auto", relaxation: str = "quad2", rto
     opts = _Options(method, relaxation, float(rtol), float(flat_rtol), int(max_depth), int(max_boxes), float(sos_tol),
                     int(sos_max_iter), int(exact_boxes))
     total = sum(b.shape[0] for _, b in blocks)
-    result = CheckResult.empty(total, method_requested=method, relaxation=relaxation)
     from .parallel import executor as make_executor
 
     ctx = nullcontext(executor) if executor is not None else make_executor(processes, scheduler)
     with ctx as ex, _threads(jobs):
         start = 0
-        if ex.workers == 1:
+        if ex.workers == 1 and len(blocks) == 1:  # one block in this process: its result is the result
+            name, conn = blocks[0]
+            result = _check_block(P, conn, name, opts, progress, 0, total)
+            result.method_requested, result.relaxation = method, relaxation
+        elif ex.workers == 1:
+            result = CheckResult.empty(total, method_requested=method, relaxation=relaxation)
             for name, conn in blocks:
                 part = _check_block(P, conn, name, opts, progress, start, total)
                 result.put(slice(start, start + len(part)), part)
                 start += len(part)
         else:
+            result = CheckResult.empty(total, method_requested=method, relaxation=relaxation)
             tasks, where = [], []
             for name, conn in blocks:
                 m = conn.shape[0]

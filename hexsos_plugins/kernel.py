@@ -39,8 +39,8 @@ import numpy as np
 from .jacobian import _indices as _factor_indices
 from .jacobian import space
 
-__all__ = ["run_cells", "coefficients", "evaluate", "polish", "scaled_jacobian", "tables", "Tables", "set_threads",
-           "implementation",
+__all__ = ["run_cells", "coefficients", "evaluate", "polish", "scaled_jacobian", "det_at", "tables", "Tables",
+           "set_threads", "implementation",
            "U", "ETA"]
 
 U = 2.0**-53  # unit roundoff
@@ -420,6 +420,25 @@ def scaled_jacobian(points, cells) -> np.ndarray:
     return np.concatenate(parts) if parts else np.zeros(0)
 
 
+def _det_at_args(points, conn, ids, dN, out, start, stop):
+    return (points, conn, ids, int(start), int(stop), dN, out)
+
+
+def det_at(points, conn, name, pcoords) -> np.ndarray:
+    """det J (pyramids: the measure) of every cell ``conn`` (VTK order) of type ``name`` at one reference point,
+    compiled, threaded as the kernel is. A sign test (no rounding bound): the orientation of node orders."""
+    from .elements import element
+
+    el = element(name)
+    dN = np.ascontiguousarray(el.shape_derivatives(np.asarray(pcoords, dtype=np.float64).reshape(1, 3))[0])
+    points = np.ascontiguousarray(points, dtype=np.float64)
+    conn = np.ascontiguousarray(conn, dtype=np.int64)
+    out = np.empty(conn.shape[0])
+    ids = np.arange(conn.shape[0], dtype=np.int64)
+    _spread(_impl.det_at_chunk, conn.shape[0], lambda a, b: _det_at_args(points, conn, ids, dN, out, a, b))
+    return out
+
+
 def entry_point_arguments() -> dict:
     """Example arguments of every entry point of the compiled source (a trilinear hexahedron), by name: the
     ahead-of-time build derives the exported signatures from them."""
@@ -436,4 +455,5 @@ def entry_point_arguments() -> dict:
         "evaluate": _evaluate_args(b, X, t, np.empty(1)),
         "polish_many": _polish_args(b, X, t, 30, np.empty((1, 3)), np.empty(1)),
         "scaled_jacobian_chunk": _sj_args(P, conn, ids, "hexahedron", np.empty(1), 0, 1),
+        "det_at_chunk": _det_at_args(P, conn, ids, np.zeros((8, 3)), np.empty(1), 0, 1),
     }

@@ -51,7 +51,7 @@ Which blocks are checked
 ``hexes`` / ``hex_blocks`` are the linear hexahedra alone (``hexahedron`` and ``voxel`` blocks), as before
 other cell types were checked; ``hex_cells`` gives their positions in the cell order.
 
-Everything here is pure numpy (no gmsh, no vtk).
+Everything here is numpy and the compiled kernel (no gmsh, no vtk).
 """
 
 from __future__ import annotations
@@ -65,7 +65,6 @@ import numpy as np
 
 from .elements import CELL_TYPES, ELEMENTS, VOXEL_TO_VTK
 from .errors import InvalidInputError, NoCellsError, NoHexahedraError  # noqa: F401 (NoHexahedraError re-exported)
-from .hexahedron import det_at, gather_t
 
 __all__ = ["Mesh", "HexMesh", "HEX_FACES", "FLIP", "INT_FILL", "HEX_TYPES", "MIRROR", "FACE_NODES", "CHECKABLE",
            "hexes_to_mesh", "boundary_face_rows", "is_3d"]
@@ -82,8 +81,6 @@ HEX_TYPES = ("hexahedron", "voxel")
 #: meshio cell types that are checked: the registry's and ``voxel``.
 CHECKABLE = tuple(ELEMENTS) + ("voxel",)
 
-_CENTRE_CHUNK = 65536
-_CENTRE = np.array([0.5, 0.5, 0.5])
 _3D_PREFIXES = ("tetra", "hexahedron", "wedge", "pyramid", "polyhedron", "voxel", "VTK_LAGRANGE_TETRA",
                 "VTK_LAGRANGE_HEXA", "VTK_LAGRANGE_WEDGE", "VTK_LAGRANGE_PYRA")
 
@@ -499,20 +496,9 @@ class Mesh:
 
     # ------------------------------------------------------------------ orientation
     def _centre_det_block(self, t, conn) -> np.ndarray:
-        # in chunks: the vertex coordinates of all cells at once would be 24 n bytes per cell, twice
-        out = np.empty(len(conn))
-        if t == "hexahedron":
-            PT = np.ascontiguousarray(self.points.T)
-            for s in range(0, len(conn), _CENTRE_CHUNK):
-                X = gather_t(PT, conn[s : s + _CENTRE_CHUNK])
-                out[s : s + _CENTRE_CHUNK] = det_at(X, _CENTRE, layout="soa")[0]
-            return out
-        el = ELEMENTS[t]
-        dN = el.shape_derivatives(el.centre[None])[0]  # (n, 3)
-        for s in range(0, len(conn), _CENTRE_CHUNK):
-            X = self.points[conn[s : s + _CENTRE_CHUNK]]
-            out[s : s + _CENTRE_CHUNK] = np.linalg.det(np.einsum("mna,nd->mad", X, dN))
-        return out
+        from . import kernel  # compiled, one pass over the nodes (no gathered copies of the cells)
+
+        return kernel.det_at(self.points, conn, t, ELEMENTS[t].centre)
 
     def centre_det(self) -> np.ndarray:
         """(n_cells,) det J of every cell at its reference centre (:attr:`Element.centre`; pyramids: the measure
