@@ -375,16 +375,20 @@ class _Options:
     exact_boxes: int
 
 
-_SOLVERS = {}  # one SOSSolver per process and setting, reused across blocks
+_SOLVERS = {}  # one SOSSolver per process, setting and SOS thread, reused across blocks
 
 
-def _solver(opts: _Options):
-    key = (opts.relaxation, opts.sos_tol, opts.sos_max_iter)
+def _solver(opts: _Options, thread: int = 0):
+    key = (opts.relaxation, opts.sos_tol, opts.sos_max_iter, thread)
     if key not in _SOLVERS:
         from .sos import SOSSolver
 
         _SOLVERS[key] = SOSSolver(relaxation=opts.relaxation, tol=opts.sos_tol, max_iter=opts.sos_max_iter)
     return _SOLVERS[key]
+
+
+#: Hexes per SOS thread below which the relaxation runs in the calling thread.
+_SOS_MIN_PER_THREAD = 16
 
 
 @contextmanager
@@ -547,17 +551,31 @@ def _run_sos(P, conn, idx, opts, lower, value, argmin, err, ratio, sos_status) -
     idx, b, berr = idx[ok], b[ok], berr[ok]
     if idx.size == 0:
         return 0
-    solver = _solver(opts)
     C = _monomials(b)
     coeff_err = 128.0 * berr
-    starts = []
-    for j, i in enumerate(idx):
-        sol = solver.solve(C[:, j], scale=float(np.abs(b[j]).max()) or 1.0)
-        sos_status[i] = _sos_code(sol.status)
-        if sol.solved:
-            ratio[i] = sol.recovery_ratio
-            lower[i] = max(lower[i], solver.certified_lower(sol, C[:, j], coeff_err[j]))
-            starts.append((j, sol.argmin))
+    found = [None] * idx.size  # per hex: the moments' argmin where Solved
+
+    def solve(part, thread):
+        solver = _solver(opts, thread)  # Clarabel releases the GIL: one solver per thread, disjoint hexes
+        for j in part:
+            i = idx[j]
+            sol = solver.solve(C[:, j], scale=float(np.abs(b[j]).max()) or 1.0)
+            sos_status[i] = _sos_code(sol.status)
+            if sol.solved:
+                ratio[i] = sol.recovery_ratio
+                lower[i] = max(lower[i], solver.certified_lower(sol, C[:, j], coeff_err[j]))
+                found[j] = sol.argmin
+
+    n_threads = max(1, min(kernel._THREADS, idx.size // _SOS_MIN_PER_THREAD))
+    if n_threads == 1:
+        solve(range(idx.size), 0)
+    else:
+        from concurrent.futures import ThreadPoolExecutor
+
+        with ThreadPoolExecutor(max_workers=n_threads, thread_name_prefix="hexsos-sos") as pool:
+            for f in [pool.submit(solve, range(t, idx.size, n_threads), t) for t in range(n_threads)]:
+                f.result()
+    starts = [(j, a) for j, a in enumerate(found) if a is not None]
     if starts:
         jj = np.array([j for j, _ in starts])
         x, f = kernel.polish(b[jj], np.array([a for _, a in starts]), "hexahedron")

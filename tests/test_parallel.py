@@ -33,6 +33,33 @@ def test_two_threads_run_in_the_kernel_and_agree(sample):
     assert kernel.last_threads == set()  # one thread: inline, no pool
 
 
+def test_sos_on_two_threads_agrees_bit_for_bit(monkeypatch):
+    """method="sos" with jobs=2: the relaxation runs on two threads (Clarabel releases the GIL), one solver per
+    thread, and every array is the single-threaded one; with jobs=1 no SOS thread is started."""
+    import threading
+
+    from hexsos_plugins import sos
+
+    P, H = hexes_to_mesh(random_hexes(64, sigma=0.3, seed=62))
+    seen = set()
+    solve = sos.SOSSolver.solve
+
+    def spy(self, *a, **k):
+        seen.add(threading.current_thread().name)
+        return solve(self, *a, **k)
+
+    monkeypatch.setattr(sos.SOSSolver, "solve", spy)
+    one = hs.check(P, H, method="sos", jobs=1)
+    assert seen == {threading.current_thread().name}
+    seen.clear()
+    two = hs.check(P, H, method="sos", jobs=2)
+    assert len(seen) == 2 and all(n.startswith("hexsos-sos") for n in seen)
+    _same(one, two)
+    for name in ("recovery_ratio", "sos_status"):
+        assert np.array_equal(getattr(one, name), getattr(two, name), equal_nan=True), name
+    assert (one.sos_status == 1).sum() > 50
+
+
 def test_processes(sample):
     P, H, ref = sample
     calls = []
