@@ -102,9 +102,14 @@ def _cell_coefficients(points, conn, m, cptr, cidx_, cval, col_a, col_b, col_w, 
     # is in the per-type constant c_abs)
     nctrl = P.shape[0]
     for r in range(nctrl):
+        p0, p1 = cptr[r], cptr[r + 1]
+        if p1 - p0 == 1 and cval[p0] == 1.0:  # a control point that is a node (linear cells, corners): exact
+            i = cidx_[p0]
+            P[r, 0], P[r, 1], P[r, 2] = D[i, 0], D[i, 1], D[i, 2]
+            eP[r, 0] = eP[r, 1] = eP[r, 2] = 0.0
+            continue
         s0 = s1 = s2 = 0.0
         t0 = t1 = t2 = 0.0
-        p0, p1 = cptr[r], cptr[r + 1]
         for p in range(p0, p1):
             w = cval[p]
             i = cidx_[p]
