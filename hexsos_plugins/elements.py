@@ -183,7 +183,7 @@ class Element:
     nodes: tuple
     corners: int
     faces: tuple
-    basis: tuple = field(repr=False)
+    basis: tuple = field(repr=False)  # polynomials spanning the space, or a function returning them
     gmsh_to_vtk: tuple = field(repr=False)
     gmsh_factor: float = 1.0
 
@@ -195,10 +195,11 @@ class Element:
     def shape_polynomials(self) -> tuple:
         """The shape functions N_0 .. N_{n-1} as exact polynomials ({(i, j, k): Fraction})."""
         n = self.n_nodes
-        V = [[_eval_exact(b, x) for b in self.basis] for x in self.nodes]  # V[i][k] = basis_k(node_i)
+        basis = self.basis() if callable(self.basis) else self.basis  # (a callable: computed when first needed)
+        V = [[_eval_exact(b, x) for b in basis] for x in self.nodes]  # V[i][k] = basis_k(node_i)
         # N_i = sum_k C[k][i] basis_k with V C = I
         C = _solve_exact(V, [[_F(int(i == j)) for j in range(n)] for i in range(n)])
-        return tuple(_add(*(_scale(self.basis[k], C[k][i]) for k in range(n))) for i in range(n))
+        return tuple(_add(*(_scale(basis[k], C[k][i]) for k in range(n))) for i in range(n))
 
     @cached_property
     def derivative_polynomials(self) -> tuple:
@@ -365,7 +366,7 @@ ELEMENTS = {
     "pyramid": Element("pyramid", 14, 7, "pyramid", 1, _nodes(_PYR5), 4, _PYR_FACES, _pyramid_basis(1), _IDENTITY[5],
                        0.25),
     "pyramid13": Element("pyramid13", 27, 19, "pyramid", 2, _nodes(_PYR5, _PYR13_EDGES), 4, _PYR_FACES,
-                         _pyramid13_basis(), _PYR13_G2V, 0.25),
+                         _pyramid13_basis, _PYR13_G2V, 0.25),
     "pyramid14": Element("pyramid14", -1, 14, "pyramid", 2,
                          _nodes(_PYR5, [_PYR13_EDGES[k] for k in (0, 3, 4, 1, 5, 2, 6, 7)], _PYR14_CENTRE), 4,
                          _PYR_FACES, _pyramid_basis(2), tuple(range(14)), 0.25),
