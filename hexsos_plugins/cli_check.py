@@ -21,14 +21,15 @@ __all__ = ["add_parsers"]
 def _read_and_check(path, args):
     """Read ``path`` (flipping a left-handed type on request) and check every 3-D cell with the command's
     options; the scaled Jacobian rides along (``result.extra``)."""
-    from .certify import check
+    from .certify import _threads, check
 
     mesh, orient = read_mesh(path, args.fix_orientation)
     bar = Progress("checking", enabled=args.progress)
     result = check(mesh.points, mesh.cells, method=args.method, relaxation=args.relaxation, progress=bar,
                    jobs=args.jobs, processes=args.processes, scheduler=args.scheduler)
     bar.close()
-    _add_quality(result, mesh.points, mesh.cells)
+    with _threads(args.jobs):  # the scaled Jacobian on the same threads as the kernel
+        _add_quality(result, mesh.points, mesh.cells)
     return mesh, orient, result
 
 
