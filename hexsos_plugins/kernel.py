@@ -4,14 +4,13 @@ One compiled path for every cell type, driven by the tables of :mod:`hexsos_plug
 ``cache=True``). Per cell:
 
 1. **coefficients**: the nodes are scaled by a power of two 2^-k (the cell's extent lands in [1, 2):
-   nothing overflows, whatever the units), taken relative to node 0, and det J is evaluated at the sample
-   points; the per-factor transforms give the Bernstein coefficients ``b`` and a rigorous bound ``err`` on
-   ``|b - b_exact|`` for the cell *as given*, with relative rounding (u = 2^-53) and absolute underflow
-   (eta = 2^-1074) terms (derivation: :mod:`hexsos_plugins.jacobian`). The size of det J's terms is the
-   permanent ``P`` of a bound on |J| over the whole element (``A_ad = sum_i max_q |dN_qid| |D_ia|``): it
-   scales like det J under any scaling of the axes. The trilinear hexahedron evaluates its 27 values from
-   its 12 edge vectors (fewer roundings than the bound allows); every other type from sparse tables of
-   shape-function derivatives;
+   nothing overflows, whatever the units) and taken relative to node 0; the geometry's control points
+   (sparse tables of dyadic weights; a control point that is a node is copied, with no rounding term), the
+   Jacobian's columns (scaled differences of control points) and det J = x_r . (x_s x x_t) by Bernstein
+   products give the coefficients ``b`` and a rigorous bound ``err`` on ``|b - b_exact|`` for the cell *as
+   given*, with relative rounding (u = 2^-53) and absolute underflow (eta = 2^-1074) terms (derivation:
+   :mod:`hexsos_plugins.jacobian`). The size of det J's terms is the permanent ``perm(A)`` of the largest
+   |column coefficient| per component and direction: it scales like det J under any scaling of the axes;
 2. **bracket**: best-first branch-and-bound over boxes (lines halved, triangles and tetrahedra cut into 4
    and 8 by their edge midpoints: fixed matrices with dyadic entries), pruning boxes whose smallest
    coefficient minus its error bound is above the best value found minus the tolerance; the smallest bound

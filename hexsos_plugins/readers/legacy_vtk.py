@@ -3,9 +3,9 @@ what meshio 5.3.5 rejects or misreads: 8-node cells typed 10 (VTK_TETRA) are rea
 (11) are read as ``voxel`` blocks (which :class:`~hexsos_plugins.mesh.Mesh` converts to VTK order); pixels (8)
 as quads; text after the data is ignored. (meshio's 5.1 reader does not fail on 8-node cells typed 10: it
 silently keeps their last 4 nodes as a tetra; a 5.x file that meshio returns with tetrahedra is therefore
-read again here.) Gmsh 4.15 writes its quadratic pyramids typed 14 with 13 or 14 nodes, in Gmsh's node order: they are
-read as ``pyramid13`` (reordered to VTK's) / ``pyramid14`` (Gmsh's order, as meshio keeps it). Cells keep the file's node order, which is VTK's (wedges
-included: no swap).
+read again here.) Gmsh 4.15 writes its quadratic pyramids typed 14 with 13 or 14 nodes, in Gmsh's node
+order: they are read as ``pyramid13`` (reordered to VTK's) / ``pyramid14`` (Gmsh's order, as meshio keeps it).
+Other cells keep the file's node order, which is VTK's (wedges included: no swap).
 """
 
 from __future__ import annotations
