@@ -1123,6 +1123,24 @@ def polish_many(b, X0, M, exps, G, h, iterations, fdim, fslot, fexp, fcoef, size
             vals[m] = v_old
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _node_matrix(points, conn, m, G, E):
+    """E[a, d] = sum_i G[i, d] x_i[a] over the nodes of cell m (G (n, 3): one sample's weights), zero weights
+    skipped; returns det E."""
+    for a in range(3):
+        for d in range(3):
+            E[a, d] = 0.0
+    for i in range(conn.shape[1]):
+        node = conn[m, i]
+        for d in range(3):
+            w = G[i, d]
+            if w != 0.0:
+                for a in range(3):
+                    E[a, d] += w * points[node, a]
+    return (E[0, 0] * (E[1, 1] * E[2, 2] - E[1, 2] * E[2, 1]) - E[0, 1] * (E[1, 0] * E[2, 2] - E[1, 2] * E[2, 0])
+            + E[0, 2] * (E[1, 0] * E[2, 1] - E[1, 1] * E[2, 0]))
+
+
 @njit(cache=True, nogil=True)
 def scaled_jacobian_chunk(points, conn, ids, start, stop, G, factor, grouped, reflect, out):
     """Verdict's scaled Jacobian of the cells ids[start:stop] (see :mod:`hexsos_plugins.quality`): G (K, n, 3)
@@ -1131,7 +1149,6 @@ def scaled_jacobian_chunk(points, conn, ids, start, stop, G, factor, grouped, re
     products (tetra, pyramid); else each sample is det / its own edge product (hexahedron, wedge). ``reflect``:
     values above 1 become 2 - v (pyramids, as Verdict). The minimum over samples goes to out[t]."""
     K = G.shape[0]
-    n = conn.shape[1]
     tiny = 2.2250738585072014e-308
     E = np.empty((3, 3))
     for t in range(start, stop):
@@ -1140,18 +1157,7 @@ def scaled_jacobian_chunk(points, conn, ids, start, stop, G, factor, grouped, re
         gdet = 0.0
         gbig = 0.0
         for k in range(K):
-            for a in range(3):
-                for d in range(3):
-                    E[a, d] = 0.0
-            for i in range(n):
-                node = conn[m, i]
-                for d in range(3):
-                    w = G[k, i, d]
-                    if w != 0.0:
-                        for a in range(3):
-                            E[a, d] += w * points[node, a]
-            det = (E[0, 0] * (E[1, 1] * E[2, 2] - E[1, 2] * E[2, 1]) - E[0, 1] * (E[1, 0] * E[2, 2] - E[1, 2] * E[2, 0])
-                   + E[0, 2] * (E[1, 0] * E[2, 1] - E[1, 1] * E[2, 0]))
+            det = _node_matrix(points, conn, m, G[k], E)
             lengths = 1.0
             for d in range(3):
                 lengths *= math.sqrt(E[0, d] * E[0, d] + E[1, d] * E[1, d] + E[2, d] * E[2, d])
@@ -1179,19 +1185,6 @@ def det_at_chunk(points, conn, ids, start, stop, dN, out):
     """det J of the cells ids[start:stop] at one reference point, from dN (n, 3), the shape-function derivatives
     there (the measure's columns for pyramids): J[a, d] = sum_i dN[i, d] x_i[a]. No rounding bound: a sign test
     (the orientation of a file's node order), never a certificate."""
-    n = conn.shape[1]
     E = np.empty((3, 3))
     for t in range(start, stop):
-        m = ids[t]
-        for a in range(3):
-            for d in range(3):
-                E[a, d] = 0.0
-        for i in range(n):
-            node = conn[m, i]
-            for d in range(3):
-                w = dN[i, d]
-                if w != 0.0:
-                    for a in range(3):
-                        E[a, d] += w * points[node, a]
-        out[t] = (E[0, 0] * (E[1, 1] * E[2, 2] - E[1, 2] * E[2, 1]) - E[0, 1] * (E[1, 0] * E[2, 2] - E[1, 2] * E[2, 0])
-                  + E[0, 2] * (E[1, 0] * E[2, 1] - E[1, 1] * E[2, 0]))
+        out[t] = _node_matrix(points, conn, ids[t], dN, E)
