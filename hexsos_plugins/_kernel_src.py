@@ -1,4 +1,5 @@
-"""The compiled kernel's source: numba functions only (math, numpy, numba; nothing of hexsos).
+"""The compiled kernel's source: numba functions only (math, numpy, numba, and the products generated from the
+tables in :mod:`hexsos_plugins._kernel_gen`; nothing else of hexsos).
 
 Compiled ahead of time into the extension ``hexsos_plugins._kernel_aot`` when the package is installed
 (:mod:`hexsos_plugins._kernel_build`, numba's ``pycc``), or just in time with numba's cache where that extension
@@ -13,6 +14,8 @@ import math
 
 import numpy as np
 from numba import njit
+
+from ._kernel_gen import products as _generated_products
 
 U = 2.0**-53  # unit roundoff
 ETA = 2.0**-1074  # smallest subnormal: bounds the error of any rounding in the subnormal range
@@ -79,6 +82,38 @@ def _perm_growth(A, E):
             s += E[r, c] * ((A[r1, c1] + E[r1, c1]) * (A[r2, c2] + E[r2, c2])
                             + (A[r1, c2] + E[r1, c2]) * (A[r2, c1] + E[r2, c1]))
     return s
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _table_products(col, X, b, col_off, xp, xi, xj, xw, dp, di, dj, dw):
+    """X = column 1 x column 2 and b = column 0 . X by loops over the product tables (sorted by output
+    coefficient, xp / dp their row pointers)."""
+    o1 = col_off[1]
+    o2 = col_off[2]
+    for g in range(X.shape[0]):
+        s0 = s1 = s2 = 0.0
+        for q in range(xp[g], xp[g + 1]):
+            a = o1 + xi[q]
+            bb = o2 + xj[q]
+            w = xw[q]
+            a0, a1, a2 = col[a, 0], col[a, 1], col[a, 2]
+            b0, b1, b2 = col[bb, 0], col[bb, 1], col[bb, 2]
+            s0 += w * (a1 * b2 - a2 * b1)
+            s1 += w * (a2 * b0 - a0 * b2)
+            s2 += w * (a0 * b1 - a1 * b0)
+        X[g, 0], X[g, 1], X[g, 2] = s0, s1, s2
+    # b = column 0 . X
+    o0 = col_off[0]
+    for i in range(b.shape[0]):
+        s0 = 0.0
+        for q in range(dp[i], dp[i + 1]):
+            a = o0 + di[q]
+            j = dj[q]
+            t = col[a, 0] * X[j, 0]
+            t += col[a, 1] * X[j, 1]
+            t += col[a, 2] * X[j, 2]
+            s0 += dw[q] * t
+        b[i] = s0
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -150,34 +185,12 @@ def _cell_coefficients(points, conn, m, cptr, cidx_, cval, col_a, col_b, col_w, 
         A[0, d], A[1, d], A[2, d] = a0, a1, a2
         f = 1.0 + 4.0 * U
         E[0, d], E[1, d], E[2, d] = e0 * f, e1 * f, e2 * f
-    # X = column 1 x column 2 (each component a difference of two Bernstein products); the product tables are
-    # sorted by output coefficient, xp / dp their row pointers
-    o1 = col_off[1]
-    o2 = col_off[2]
-    for g in range(X.shape[0]):
-        s0 = s1 = s2 = 0.0
-        for q in range(xp[g], xp[g + 1]):
-            a = o1 + xi[q]
-            bb = o2 + xj[q]
-            w = xw[q]
-            a0, a1, a2 = col[a, 0], col[a, 1], col[a, 2]
-            b0, b1, b2 = col[bb, 0], col[bb, 1], col[bb, 2]
-            s0 += w * (a1 * b2 - a2 * b1)
-            s1 += w * (a2 * b0 - a0 * b2)
-            s2 += w * (a0 * b1 - a1 * b0)
-        X[g, 0], X[g, 1], X[g, 2] = s0, s1, s2
-    # b = column 0 . X
-    o0 = col_off[0]
-    for i in range(nb):
-        s0 = 0.0
-        for q in range(dp[i], dp[i + 1]):
-            a = o0 + di[q]
-            j = dj[q]
-            t = col[a, 0] * X[j, 0]
-            t += col[a, 1] * X[j, 1]
-            t += col[a, 2] * X[j, 2]
-            s0 += dw[q] * t
-        b[i] = s0
+    # X = column 1 x column 2 (each component a difference of two Bernstein products), then b = column 0 . X:
+    # the type's straight-line products generated from its tables where they exist (_kernel_gen, the same
+    # operations in the same order), else the loops over the tables, sorted by output coefficient, xp / dp
+    # their row pointers
+    if not _generated_products(int(consts[6]), col, X, b):
+        _table_products(col, X, b, col_off, xp, xi, xj, xw, dp, di, dj, dw)
     size = _perm(A)
     # exactly degenerate: every term of det J has a factor that is exactly 0 (a cell in a plane, a line, ...);
     # a size that merely underflows is not that

@@ -302,10 +302,10 @@ def test_flatness_scale_is_not_a_free_knob():
 def test_no_fastmath_in_anything_that_feeds_a_bound():
     from numba.core.registry import CPUDispatcher
 
-    from hexsos_plugins import _kernel_src
+    from hexsos_plugins import _kernel_gen, _kernel_src
 
-    found = [f for f in vars(_kernel_src).values() if isinstance(f, CPUDispatcher)]
-    assert len(found) > 10
+    found = [f for m in (_kernel_src, _kernel_gen) for f in vars(m).values() if isinstance(f, CPUDispatcher)]
+    assert len(found) > 15
     for f in found:
         assert not f.targetoptions.get("fastmath"), f.__name__
 
@@ -509,3 +509,40 @@ def test_compiled_det_at_one_point_matches_the_registry(name):
     assert (got > 0).all()
     mirrored = kernel.det_at(P, conn[:, _mirror(name)], name, pc)
     assert np.allclose(mirrored, -want, rtol=1e-12, atol=1e-14 * np.abs(want).max())
+
+
+def test_generated_products_are_current_and_bit_identical_to_the_table_loops():
+    """_kernel_gen.py is what the current tables generate (an edit of the registry or the formulation without
+    regenerating fails here, and the kernel then falls back to the loops), each generated type uses it, and its
+    coefficients and error bounds equal the table loops' bit for bit, adversarial cells included."""
+    from pathlib import Path
+
+    from hexsos_plugins import _kernel_gen
+
+    assert Path(_kernel_gen.__file__).read_text() == kernel.generated_source()
+    for name in TYPES:
+        assert kernel.tables(name).consts[6] == (kernel.GENERATED.index(name) + 1 if name in kernel.GENERATED else 0)
+    for name in kernel.GENERATED:
+        X = np.array([_reference(name)] + _adversarial(name, 71) + list(_perturbed(name, 300, 0.4, 72)))
+        P = X.reshape(-1, 3)
+        conn = np.arange(P.shape[0]).reshape(X.shape[0], -1)
+        ids = np.arange(len(conn))
+        outs = []
+        for t in (kernel.Tables(name), kernel.Tables(name, generated=False)):
+            o = (np.empty((len(ids), t.nb)), np.empty(len(ids)), np.empty(len(ids), dtype=np.int64), np.empty(len(ids)))
+            kernel._impl.coefficients_chunk(*kernel._coefficient_args(P, conn, ids, t, o, 0, len(ids)))
+            outs.append(o)
+        assert outs[0][0].shape[1] > 0 and kernel.Tables(name).consts[6] > 0
+        for a, b in zip(*outs):
+            assert np.array_equal(a, b, equal_nan=True), name
+    # negative case: a table with a weight changed is not what the generated code computes
+    t = kernel.Tables("hexahedron", generated=False)
+    t.dw = t.dw.copy()
+    t.dw[0] *= 1.5
+    X = _perturbed("hexahedron", 20, 0.3, 73)
+    P = X.reshape(-1, 3)
+    conn = np.arange(P.shape[0]).reshape(20, -1)
+    o1 = kernel.coefficients(P, conn, np.arange(20), "hexahedron")[0]
+    o2 = (np.empty((20, t.nb)), np.empty(20), np.empty(20, dtype=np.int64), np.empty(20))
+    kernel._impl.coefficients_chunk(*kernel._coefficient_args(P, conn, np.arange(20), t, o2, 0, 20))
+    assert not np.array_equal(o1, o2[0])
