@@ -535,10 +535,13 @@ def test_generated_products_are_current_and_bit_identical_to_the_table_loops():
         assert outs[0][0].shape[1] > 0 and kernel.Tables(name).consts[6] > 0
         for a, b in zip(*outs):
             assert np.array_equal(a, b, equal_nan=True), name
-    # negative case: a table with a weight changed is not what the generated code computes
+    # negative case: a table with a weight changed is not what the generated code computes, and its fingerprint
+    # no longer matches the generated code's, so the kernel would not use it
     t = kernel.Tables("hexahedron", generated=False)
+    assert kernel._generated_id(t) == kernel.GENERATED.index("hexahedron") + 1
     t.dw = t.dw.copy()
     t.dw[0] *= 1.5
+    assert kernel._generated_id(t) == 0
     X = _perturbed("hexahedron", 20, 0.3, 73)
     P = X.reshape(-1, 3)
     conn = np.arange(P.shape[0]).reshape(20, -1)
