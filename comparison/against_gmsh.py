@@ -13,6 +13,7 @@ from __future__ import annotations
 
 from . import _common as C
 
+import contextlib  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
@@ -28,35 +29,46 @@ SIZES = {"tiny": {"hexes": 500, "repeat": 1}, "quick": {"hexes": 100_000, "repea
 RTOL_ROUND = 1e-9
 
 
+def gmsh_local(el, pcoords) -> np.ndarray:
+    """VTK's parametric coordinates (K, 3) of a cell type -> Gmsh's reference coordinates of the same points."""
+    r, s, t = np.asarray(pcoords, float).reshape(-1, 3).T
+    return {"cube": lambda: np.c_[2 * r - 1, 2 * s - 1, 2 * t - 1], "tet": lambda: np.c_[r, s, t],
+            "prism": lambda: np.c_[r, s, 2 * t - 1],
+            "pyramid": lambda: np.c_[(2 * r - 1) * (1 - t), (2 * s - 1) * (1 - t), t]}[el.domain]()
+
+
+@contextlib.contextmanager
+def _gmsh_cells(points, cells, name):
+    """A Gmsh model (one thread) holding the points and the cells, (cell_type, conn) pairs in VTK node order given
+    to Gmsh in its own: yields (gmsh, element tags, each cell's gmsh_factor)."""
+    from hexsos_plugins.elements import ELEMENTS
+    from hexsos_plugins.examples import gmsh_model
+
+    with gmsh_model(name) as gmsh:
+        gmsh.option.setNumber("General.NumThreads", 1)
+        gmsh.model.addDiscreteEntity(3, 1)
+        gmsh.model.mesh.addNodes(3, 1, np.arange(1, len(points) + 1), np.asarray(points, float).ravel())
+        tags, factors, start = [], [], 1
+        for t, conn in cells:
+            el = ELEMENTS[t]
+            conn = np.asarray(conn, dtype=np.int64)
+            to_gmsh = np.argsort(el.gmsh_to_vtk)  # gmsh[:, j] = vtk[:, to_gmsh[j]]
+            tg = np.arange(start, start + len(conn))
+            gmsh.model.mesh.addElementsByType(1, el.gmsh_type, tg, (conn[:, to_gmsh] + 1).ravel())
+            tags.append(tg)
+            factors.append(np.full(len(conn), el.gmsh_factor))
+            start += len(conn)
+        yield gmsh, np.concatenate(tags), np.concatenate(factors)
+
+
 def gmsh_qualities(points, cells, *, repeat: int = 1):
     """Gmsh's minDetJac and maxDetJac in our units (divided by each type's ``gmsh_factor``: for hexahedra times
     8, [0, 1]^3 against Gmsh's [-1, 1]^3) and the best time of minDetJac.
 
     ``cells``: an (M, 8) hex array or (cell_type, conn) pairs in VTK node order (given to Gmsh in its own)."""
-    import gmsh
-
-    from hexsos_plugins.elements import ELEMENTS
-
     if not (isinstance(cells, (list, tuple)) and cells and isinstance(cells[0], (list, tuple))):
         cells = [("hexahedron", np.asarray(cells))]
-    gmsh.initialize(["-noenv"], readConfigFiles=False)
-    try:
-        gmsh.option.setNumber("General.Terminal", 0)
-        gmsh.option.setNumber("General.NumThreads", 1)
-        gmsh.model.add("comparison")
-        gmsh.model.addDiscreteEntity(3, 1)
-        gmsh.model.mesh.addNodes(3, 1, np.arange(1, len(points) + 1), np.asarray(points, float).ravel())
-        tags, factors, start = [], [], 1
-        for name, conn in cells:
-            el = ELEMENTS[name]
-            conn = np.asarray(conn, dtype=np.int64)
-            to_gmsh = np.argsort(el.gmsh_to_vtk)  # gmsh[:, j] = vtk[:, to_gmsh[j]]
-            t = np.arange(start, start + len(conn))
-            gmsh.model.mesh.addElementsByType(1, el.gmsh_type, t, (conn[:, to_gmsh] + 1).ravel())
-            tags.append(t)
-            factors.append(np.full(len(conn), el.gmsh_factor))
-            start += len(conn)
-        tags, factors = np.concatenate(tags), np.concatenate(factors)
+    with _gmsh_cells(points, cells, "comparison") as (gmsh, tags, factors):
         best = np.inf
         for _ in range(repeat):
             t = time.perf_counter()
@@ -64,38 +76,17 @@ def gmsh_qualities(points, cells, *, repeat: int = 1):
             best = min(best, time.perf_counter() - t)
         qmax = gmsh.model.mesh.getElementQualities(tags, "maxDetJac")
         return np.asarray(qmin) / factors, np.asarray(qmax) / factors, best
-    finally:
-        gmsh.finalize()
 
 
 def gmsh_det_at(points, name, conn, pcoords):
     """Gmsh's own det J (``getJacobian``) of each cell ``conn[i]`` (VTK order) at its point ``pcoords[i]`` (VTK's
     parametric coordinates), in our units (divided by ``gmsh_factor``)."""
-    import gmsh
-
     from hexsos_plugins.elements import ELEMENTS
 
-    el = ELEMENTS[name]
-    conn = np.asarray(conn, dtype=np.int64)
-    r, s, t = np.asarray(pcoords, float).T
-    local = {"cube": lambda: np.c_[2 * r - 1, 2 * s - 1, 2 * t - 1], "tet": lambda: np.c_[r, s, t],
-             "prism": lambda: np.c_[r, s, 2 * t - 1],
-             "pyramid": lambda: np.c_[(2 * r - 1) * (1 - t), (2 * s - 1) * (1 - t), t]}[el.domain]()
-    gmsh.initialize(["-noenv"], readConfigFiles=False)
-    try:
-        gmsh.option.setNumber("General.Terminal", 0)
-        gmsh.model.add("det-at")
-        gmsh.model.addDiscreteEntity(3, 1)
-        gmsh.model.mesh.addNodes(3, 1, np.arange(1, len(points) + 1), np.asarray(points, float).ravel())
-        tags = np.arange(1, len(conn) + 1)
-        gmsh.model.mesh.addElementsByType(1, el.gmsh_type, tags, (conn[:, np.argsort(el.gmsh_to_vtk)] + 1).ravel())
-        out = np.empty(len(conn))
-        for i, tag in enumerate(tags):
-            _, d, _ = gmsh.model.mesh.getJacobian(int(tag), local[i].tolist())
-            out[i] = d[0]
-        return out / el.gmsh_factor
-    finally:
-        gmsh.finalize()
+    local = gmsh_local(ELEMENTS[name], pcoords)
+    with _gmsh_cells(points, [(name, conn)], "det-at") as (gmsh, tags, factors):
+        out = np.array([gmsh.model.mesh.getJacobian(int(tag), x.tolist())[1][0] for tag, x in zip(tags, local)])
+        return out / factors
 
 
 def compare_set(label, X, repeat):

@@ -12,6 +12,7 @@ from VTK's collapsed cube by u = (2 r - 1)(1 - t), v = (2 s - 1)(1 - t), w = t; 
 different limit along every direction into the apex.
 """
 
+import contextlib
 from functools import lru_cache
 
 import numpy as np
@@ -41,34 +42,22 @@ def _cell(name):
     return getattr(dm, CLASSES[name])()
 
 
-def _gmsh_reference(name):
-    import gmsh
+def _gmsh_session():
+    """A Gmsh session for the block (an open one is used as it is)."""
+    from hexsos_plugins.examples import gmsh_model
 
+    return gmsh_model("vtk-sampling")
+
+
+def _gmsh_reference(name):
     gtype, perm = GMSH_PYRAMIDS[name]
-    with _gmsh_session(gmsh):
+    with _gmsh_session() as gmsh:
         ref = np.asarray(gmsh.model.mesh.getElementProperties(gtype)[4]).reshape(-1, 3)[perm]
     u, v, w = ref.T
     with np.errstate(invalid="ignore", divide="ignore"):
         r = np.where(w < 1, (u / (1 - w) + 1) / 2, 0.0)
         s = np.where(w < 1, (v / (1 - w) + 1) / 2, 0.0)
     return np.c_[r, s, w]
-
-
-class _gmsh_session:
-    """Gmsh initialized for the duration (left as found when it already was)."""
-
-    def __init__(self, gmsh):
-        self.gmsh = gmsh
-
-    def __enter__(self):
-        self.owner = not self.gmsh.isInitialized()
-        if self.owner:
-            self.gmsh.initialize([], readConfigFiles=False, interruptible=False)
-            self.gmsh.option.setNumber("General.Terminal", 0)
-
-    def __exit__(self, *exc):
-        if self.owner:
-            self.gmsh.finalize()
 
 
 def reference_nodes(name):
@@ -89,13 +78,11 @@ def reference_nodes(name):
 
 
 def _gmsh_derivatives(name, pts):
-    import gmsh
-
     gtype, perm = GMSH_PYRAMIDS[name]
     pts = np.asarray(pts, float)
     r, s, t = pts.T
     uvw = np.c_[(2 * r - 1) * (1 - t), (2 * s - 1) * (1 - t), t]
-    with _gmsh_session(gmsh):
+    with _gmsh_session() as gmsh:
         _, g, _ = gmsh.model.mesh.getBasisFunctions(gtype, uvw.ravel().tolist(), "GradLagrange")
     g = np.asarray(g).reshape(len(pts), len(perm), 3)[:, perm]  # d N / d (u, v, w), VTK node order
     return np.stack([2 * g[..., 0], 2 * g[..., 1], g[..., 0] + g[..., 1] + g[..., 2]], axis=-1)
@@ -151,6 +138,12 @@ def grid(name, n):
 def dense_min(name, X, *, n=13, zooms=8, starts=3, shrink=0.25):
     """Dense minimum per cell: values (M,), points (M, 3) and a uniqueness flag (M,) (every grid point within
     1e-3 of the value range of the minimum lies within 0.2 of the minimizer)."""
+    # the quadratic pyramids' thousands of small evaluations share one Gmsh session
+    with _gmsh_session() if name in GMSH_PYRAMIDS else contextlib.nullcontext():
+        return _dense_min(name, X, n, zooms, starts, shrink)
+
+
+def _dense_min(name, X, n, zooms, starts, shrink):
     X = np.asarray(X, float)
     M = X.shape[0]
     G = grid(name, n)

@@ -16,15 +16,8 @@ from hexsos_plugins.mesh import FACE_NODES, MIRROR, Mesh
 gmsh = pytest.importorskip("gmsh")
 vtk = pytest.importorskip("vtk")
 
+from comparison.against_gmsh import gmsh_local  # noqa: E402
 from test_readers import KINDS, VTK_CELLS, sample_points, vtk_det, write_gmsh_meshes  # noqa: E402
-
-
-def gmsh_local(el, pc):
-    """VTK parametric coordinates -> Gmsh's reference coordinates of the same point."""
-    r, s, t = pc.T
-    return {"cube": lambda: np.c_[2 * r - 1, 2 * s - 1, 2 * t - 1], "tet": lambda: pc.copy(),
-            "prism": lambda: np.c_[r, s, 2 * t - 1],
-            "pyramid": lambda: np.c_[(2 * r - 1) * (1 - t), (2 * s - 1) * (1 - t), t]}[el.domain]()
 
 
 def one_gmsh_cell(el, seed):
