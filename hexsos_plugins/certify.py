@@ -406,12 +406,31 @@ def _threads(jobs):
         kernel.set_threads(old)
 
 
+class _Powers:
+    """2^k3 and 2^-k3 of exponents k3 (all within float64's normal range) for :func:`_to_world`: a product by a
+    power of two rounds as ``np.ldexp`` does (one correctly rounded operation), at a fifth of its cost."""
+
+    def __init__(self, k3):
+        k3 = np.asarray(k3, dtype=np.int32)
+        self.up = np.ldexp(1.0, k3)
+        self.down = np.ldexp(1.0, -k3)
+
+    @staticmethod
+    def of(k3):
+        """The powers when every |k3| <= 1022 (both powers normal floats), else k3 itself."""
+        return _Powers(k3) if k3.size == 0 or int(np.abs(k3).max()) <= 1022 else k3
+
+
 def _to_world(v, k3, *, down: bool):
     """Scaled values times 2^k3: exact where representable; else the nearest float of the same sign
     (``down=False``) or the largest float below (``down=True``). Returns (values, unrepresentable)."""
     with np.errstate(over="ignore", under="ignore", invalid="ignore"):
-        w = np.ldexp(v, k3)
-        back = np.ldexp(w, -k3)
+        if isinstance(k3, _Powers):  # the usual case: 2^k3 and 2^-k3 are floats, a product by either is ldexp
+            w = v * k3.up
+            back = w * k3.down
+        else:
+            w = np.ldexp(v, k3)
+            back = np.ldexp(w, -k3)
     if np.array_equal(back, v):  # every value exact (the usual case): nothing to round, nothing unrepresentable
         return w, np.zeros(w.shape, dtype=bool)
     inexact = np.isfinite(w) & (back != v)
@@ -496,7 +515,7 @@ def _check_block(P, conn, name, opts: _Options, progress=None, offset=0, total=N
     status[flat] = -1
     method[flat] = _FLAT
 
-    k3 = 3 * r["k"]
+    k3 = _Powers.of(3 * r["k"])
     min_det, bad1 = _to_world(value, k3, down=False)
     low_w, bad2 = _to_world(lower, k3, down=True)
     corner, _ = _to_world(r["corner"], k3, down=False)
