@@ -47,6 +47,7 @@ __all__ = [
     "Relaxation",
     "SOSSolution",
     "SOSSolver",
+    "SOSBatch",
     "svec",
     "smat",
     "monomials_upto",
@@ -258,6 +259,13 @@ class SOSSolver:
         b[self._fidx] = coeffs
         return b
 
+    def _scales(self, C, scales):
+        if scales is None:
+            scales = np.abs(C).max(axis=0)
+        scales = np.array(scales, dtype=np.float64).reshape(-1)
+        scales[~np.isfinite(scales) | (scales <= 0.0)] = 1.0
+        return scales
+
     def solve(self, coeffs, scale: float | None = None) -> SOSSolution:
         """Solve the relaxation for one hex.
 
@@ -268,44 +276,80 @@ class SOSSolver:
         scale : float, optional
             Divide the coefficients by this before solving (default: their largest magnitude).
         """
-        coeffs = np.asarray(coeffs, dtype=np.float64)
-        if scale is None:
-            scale = float(np.abs(coeffs).max())
-        if not np.isfinite(scale) or scale <= 0.0:
-            scale = 1.0
-        b = self._rhs(coeffs / scale)
-        t0 = time.perf_counter()
-        try:
-            if self._solver is None:
-                self._solver = self._clarabel.DefaultSolver(self._P, self._q, self._A, b, self._cones,
-                                                            self._settings)
-            else:
-                self._solver.update(b=b)
-            sol = self._solver.solve()
-        except Exception as exc:  # Clarabel raises plain exceptions on malformed data
-            raise SolverError(f"Clarabel failed to run the {self.relaxation.name!r} relaxation: {exc}") from exc
-        seconds = time.perf_counter() - t0
-        status = str(sol.status)
-        x = np.asarray(sol.x)
-        z = np.asarray(sol.z)
-        y = z[: self._ns].copy()
-        gram = [smat(x[self._offsets[i] : self._offsets[i + 1]], n) for i, n in enumerate(self.sizes)]
-        M0 = smat(z[self._ns : self._ns + self.block_maps[0].shape[1]], self.sizes[0])
-        try:
-            ev = np.linalg.eigvalsh(M0)
-            ratio = float(ev[-2] / ev[-1]) if ev[-1] > 0 else float("nan")
-        except np.linalg.LinAlgError:
-            ratio = float("nan")
-        y0 = y[self.index[(0, 0, 0)]]
-        first = np.array([y[self.index[e]] for e in ((1, 0, 0), (0, 1, 0), (0, 0, 1))])
-        if np.isfinite(y0) and abs(y0) > 0:
-            first = first / y0
+        C = np.asarray(coeffs, dtype=np.float64).reshape(-1, 1)
+        r = self.solve_many(C, None if scale is None else [scale], keep=True)
+        return SOSSolution(status=r.status[0], value=float(r.value[0]), argmin=r.argmin[0],
+                           recovery_ratio=float(r.recovery_ratio[0]), iterations=int(r.iterations[0]),
+                           seconds=float(r.seconds[0]), moments=r.moments[0], gram=[Q[0] for Q in r.gram],
+                           lam=float(r.lam[0]), scale=float(r.scale[0]), relaxation=self.relaxation.name)
+
+    def solve_many(self, C, scales=None, coeff_err=None, *, keep: bool = False) -> "SOSBatch":
+        """Solve the relaxation for many hexes, one Clarabel solve each (the solver reused; Clarabel releases
+        the GIL while it solves), then everything else for all of them at once: the moments and their point,
+        the recovery ratio and, with ``coeff_err``, the certified lower bounds (:meth:`certified_lower`).
+
+        Parameters
+        ----------
+        C : array_like, shape (20, N)
+            Monomial coefficients of det J per hex (columns).
+        scales : array_like (N,), optional
+            Divide each hex's coefficients by this before solving (default: their largest magnitude).
+        coeff_err : array_like (N,), optional
+            A bound on the error of each hex's coefficients (det J units): certified lower bounds are returned.
+        keep : bool
+            Also return the Gram matrices and the moments.
+        """
+        C = np.asarray(C, dtype=np.float64)
+        n = C.shape[1]
+        scales = self._scales(C, scales)
+        F = np.zeros((n, self._A.shape[0]))
+        F[:, self._fidx] = (C / scales).T
+        nx, nz = self._A.shape[1], self._A.shape[0]
+        X = np.full((n, nx), np.nan)
+        Z = np.full((n, nz), np.nan)
+        status, iterations, seconds = [], np.zeros(n, dtype=np.int64), np.zeros(n)
+        for j in range(n):
+            t0 = time.perf_counter()
+            try:
+                if self._solver is None:
+                    self._solver = self._clarabel.DefaultSolver(self._P, self._q, self._A, F[j], self._cones,
+                                                                self._settings)
+                else:
+                    self._solver.update(b=F[j])
+                sol = self._solver.solve()
+            except Exception as exc:  # Clarabel raises plain exceptions on malformed data
+                raise SolverError(f"Clarabel failed to run the {self.relaxation.name!r} relaxation: {exc}") from exc
+            seconds[j] = time.perf_counter() - t0
+            status.append(str(sol.status))
+            X[j] = sol.x
+            Z[j] = sol.z
+            iterations[j] = sol.iterations
+        solved = np.array([st == "Solved" for st in status], dtype=bool)  # the rest is reported, never used
+        lam = X[:, 0].copy()
+        gram = [_smat_many(X[:, self._offsets[i] : self._offsets[i + 1]], m) for i, m in enumerate(self.sizes)]
+        y = Z[:, : self._ns].copy()
+        M0 = _smat_many(Z[:, self._ns : self._ns + self.block_maps[0].shape[1]], self.sizes[0])
+        ratio = np.full(n, np.nan)
+        good = np.isfinite(M0).all(axis=(1, 2))
+        if good.any():
+            try:
+                ev = np.linalg.eigvalsh(M0[good])
+            except np.linalg.LinAlgError:
+                ev = np.full((int(good.sum()), M0.shape[1]), np.nan)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                ratio[good] = np.where(ev[:, -1] > 0, ev[:, -2] / ev[:, -1], np.nan)
+        y0 = y[:, self.index[(0, 0, 0)]]
+        first = y[:, [self.index[e] for e in ((1, 0, 0), (0, 1, 0), (0, 0, 1))]]
+        usable = np.isfinite(y0) & (y0 != 0)
+        first[usable] /= y0[usable, None]
         argmin = np.clip(np.nan_to_num(first, nan=0.5), 0.0, 1.0)
-        ok = status == "Solved"  # AlmostSolved and the rest are reported, never used
-        value = float(x[0]) * scale if ok else float("nan")
-        return SOSSolution(status=status, value=value, argmin=argmin, recovery_ratio=ratio,
-                           iterations=int(sol.iterations), seconds=seconds, moments=y, gram=gram,
-                           lam=float(x[0]), scale=scale, relaxation=self.relaxation.name)
+        value = np.where(solved, lam * scales, np.nan)
+        lower = None
+        if coeff_err is not None:
+            lower = self._certified(lam, gram, F[:, : self._ns], np.asarray(coeff_err, dtype=np.float64), scales)
+        return SOSBatch(status=status, solved=solved, value=value, lam=lam, scale=scales, argmin=argmin,
+                        recovery_ratio=ratio, iterations=iterations, seconds=seconds, lower=lower,
+                        gram=gram if keep else None, moments=y if keep else None)
 
     def certified_lower(self, solution: SOSSolution, coeffs, coeff_err: float = 0.0) -> float:
         """A rigorous lower bound on min det J over [0, 1]^3 from an SOS certificate (or -inf).
@@ -324,23 +368,70 @@ class SOSSolver:
         """
         if solution.gram is None or not np.isfinite(solution.lam):
             return float("-inf")
-        s = solution.scale
-        f = self._rhs(np.asarray(coeffs, dtype=np.float64) / s)[: self._ns]
-        total = np.zeros(self._ns)
-        mag = np.zeros(self._ns)
+        s = np.array([solution.scale], dtype=np.float64)
+        f = self._rhs(np.asarray(coeffs, dtype=np.float64) / s[0])[: self._ns]
+        return float(self._certified(np.array([solution.lam]), [Q[None] for Q in solution.gram], f[None],
+                                     np.array([coeff_err], dtype=np.float64), s)[0])
+
+    def _certified(self, lam, gram, f, coeff_err, scales):
+        """:meth:`certified_lower` of N hexes at once: lam (N,), gram per block (N, n, n), f (N, support) the
+        normalized coefficients, coeff_err and scales (N,). Every hex's numbers are computed on its own (batched
+        LAPACK per matrix, einsum per row): a hex's bound does not depend on the others in its batch."""
+        n = lam.shape[0]
+        total = np.zeros((n, self._ns))
+        mag = np.zeros((n, self._ns))
+        ok = np.isfinite(lam)
         nterms = 0
-        for (g, basis), Q, Am, Aabs in zip(self.relaxation.blocks, solution.gram, self._dense_maps, self._abs_maps):
-            if not np.all(np.isfinite(Q)):
-                return float("-inf")
-            w, V = np.linalg.eigh(Q)
-            L = V * np.sqrt(np.clip(w, 0.0, None))  # Q+ = L L^T, explicit squares
-            Qp = L @ L.T
-            Qabs = np.abs(L) @ np.abs(L).T
-            total += Am @ svec(Qp)
-            mag += Aabs @ svec(Qabs)
+        for (g, basis), Q in zip(self.relaxation.blocks, gram):
+            ok &= np.isfinite(Q).all(axis=(1, 2))
             nterms = max(nterms, len(basis) + 4)
+        for Q, Am, Aabs in zip(gram, self._dense_maps, self._abs_maps):
+            Q = np.where(ok[:, None, None], Q, 0.0)
+            w, V = np.linalg.eigh(Q)
+            L = V * np.sqrt(np.clip(w, 0.0, None))[:, None, :]  # Q+ = L L^T, explicit squares
+            La = np.abs(L)
+            total += np.einsum("ak,nk->na", Am, _svec_many(np.einsum("nik,njk->nij", L, L)))
+            mag += np.einsum("ak,nk->na", Aabs, _svec_many(np.einsum("nik,njk->nij", La, La)))
         r = f - total
-        r[self.index[(0, 0, 0)]] -= solution.lam
+        r[:, self.index[(0, 0, 0)]] -= lam
         gamma = 4 * (nterms + 8) * UNIT_ROUND / (1 - 4 * (nterms + 8) * UNIT_ROUND)
-        bound = np.abs(r).sum() + gamma * (mag.sum() + np.abs(f).sum() + abs(solution.lam)) + 20 * coeff_err / s
-        return float((solution.lam - bound) * s)
+        with np.errstate(invalid="ignore", over="ignore"):
+            bound = (np.abs(r).sum(axis=1) + gamma * (mag.sum(axis=1) + np.abs(f).sum(axis=1) + np.abs(lam))
+                     + 20 * coeff_err / scales)
+            out = (lam - bound) * scales
+        out[~ok | ~np.isfinite(out)] = -np.inf
+        return out
+
+
+@dataclass
+class SOSBatch:
+    """The outcome of :meth:`SOSSolver.solve_many` (one entry per hex; values in det J units)."""
+
+    status: list  # Clarabel's statuses
+    solved: np.ndarray  # status == "Solved": only these values and bounds mean anything
+    value: np.ndarray  # the relaxation's optimum (NaN unless Solved)
+    lam: np.ndarray  # lambda of the certificate (normalized units)
+    scale: np.ndarray
+    argmin: np.ndarray  # (N, 3) first moments, clipped to [0, 1]
+    recovery_ratio: np.ndarray
+    iterations: np.ndarray
+    seconds: np.ndarray
+    lower: np.ndarray = None  # certified lower bounds (with coeff_err)
+    gram: list = field(repr=False, default=None)  # per block (N, n, n) (keep=True)
+    moments: np.ndarray = field(repr=False, default=None)  # (N, support) (keep=True)
+
+
+def _svec_many(S) -> np.ndarray:
+    """:func:`svec` of a stack (N, n, n)."""
+    rows, cols, w = _svec_index(S.shape[1])
+    return S[:, rows, cols] * w
+
+
+def _smat_many(V, n: int) -> np.ndarray:
+    """:func:`smat` of a stack of vectors (N, n(n+1)/2)."""
+    rows, cols, w = _svec_index(n)
+    S = np.empty((V.shape[0], n, n))
+    vals = V / w
+    S[:, rows, cols] = vals
+    S[:, cols, rows] = vals
+    return S

@@ -121,3 +121,27 @@ def test_non_solved_status_is_reported_not_used():
     r = S.solve(C)
     assert r.status != "Solved" and not r.solved
     assert np.isnan(r.value)
+
+
+def test_batched_solves_and_certificates_equal_one_at_a_time():
+    """solve_many (what the check runs) gives every hex exactly what solve + certified_lower give it alone, in any
+    batch: the bound of a hex does not depend on its neighbours; a hex the solver cannot finish (2 iterations)
+    keeps its status and is not given a bound by the others."""
+    X = random_hexes(12, sigma=0.4, seed=33)
+    B, err = hx.det_bernstein(X)
+    C = hx.bernstein_to_monomial(B)
+    S = sos.SOSSolver()
+    ce, sc = 128 * err, np.abs(B).max(axis=0)
+    whole = S.solve_many(C, sc, coeff_err=ce)
+    odd = S.solve_many(C[:, 1::2], sc[1::2], coeff_err=ce[1::2])
+    for m in range(12):
+        one = S.solve(C[:, m], scale=sc[m])
+        assert whole.status[m] == one.status == "Solved"
+        assert whole.value[m] == one.value and np.array_equal(whole.argmin[m], one.argmin)
+        assert whole.lower[m] == S.certified_lower(one, C[:, m], ce[m])
+        if m % 2:
+            assert odd.lower[m // 2] == whole.lower[m] and odd.value[m // 2] == whole.value[m]
+    dense, _, _ = dense_min(X)
+    assert np.all(whole.lower <= dense) and np.all(dense - whole.lower < 1e-6 * np.abs(B).max(axis=0))
+    short = sos.SOSSolver(max_iter=2).solve_many(C[:, :3], sc[:3], coeff_err=ce[:3])
+    assert not short.solved.any() and np.isnan(short.value).all()
