@@ -1155,25 +1155,48 @@ def _node_matrix(points, conn, m, G, E):
 
 
 @njit(cache=True, nogil=True)
-def scaled_jacobian_chunk(points, conn, ids, start, stop, G, factor, grouped, reflect, out):
-    """Verdict's scaled Jacobian of the cells ids[start:stop] (see :mod:`hexsos_plugins.quality`): G (K, n, 3)
-    the sample matrices (the edge vectors of sample k are E_k = X^T G_k), factor the ideal cell's scale.
-    ``grouped``: samples come in fours, the corners of a tet, whose value is det / the largest of their edge
-    products (tetra, pyramid); else each sample is det / its own edge product (hexahedron, wedge). ``reflect``:
-    values above 1 become 2 - v (pyramids, as Verdict). The minimum over samples goes to out[t]."""
-    K = G.shape[0]
+def scaled_jacobian_chunk(points, conn, ids, start, stop, vptr, vnode, vw, samp, ssign, factor, grouped, reflect,
+                          out):
+    """Verdict's scaled Jacobian of the cells ids[start:stop] (see :mod:`hexsos_plugins.quality`) from the sample
+    matrices' distinct columns (up to sign): vector v is sum_q vw[q] x_vnode[q] over q in vptr[v]:vptr[v + 1]
+    (in node order, as the matrix product), and sample k has the columns ssign[k, d] * vector samp[k, d]; a
+    column shared by several samples (a hexahedron's edge) is formed and measured once. ``grouped``: samples
+    come in fours, the corners of a tet, whose value is det / the largest of their edge products (tetra,
+    pyramid); else each sample is det / its own edge product (hexahedron, wedge). ``reflect``: values above 1
+    become 2 - v (pyramids, as Verdict). The minimum over samples goes to out[t]."""
+    K = samp.shape[0]
+    nv = vptr.shape[0] - 1
     tiny = 2.2250738585072014e-308
-    E = np.empty((3, 3))
+    Vx = np.empty((nv, 3))
+    Ln = np.empty(nv)
     for t in range(start, stop):
         m = ids[t]
+        for v in range(nv):
+            s0 = 0.0
+            s1 = 0.0
+            s2 = 0.0
+            for q in range(vptr[v], vptr[v + 1]):
+                w = vw[q]
+                node = conn[m, vnode[q]]
+                s0 += w * points[node, 0]
+                s1 += w * points[node, 1]
+                s2 += w * points[node, 2]
+            Vx[v, 0] = s0
+            Vx[v, 1] = s1
+            Vx[v, 2] = s2
+            Ln[v] = math.sqrt(s0 * s0 + s1 * s1 + s2 * s2)
         best = np.inf
         gdet = 0.0
         gbig = 0.0
         for k in range(K):
-            det = _node_matrix(points, conn, m, G[k], E)
-            lengths = 1.0
-            for d in range(3):
-                lengths *= math.sqrt(E[0, d] * E[0, d] + E[1, d] * E[1, d] + E[2, d] * E[2, d])
+            a = samp[k, 0]
+            b = samp[k, 1]
+            c = samp[k, 2]
+            # det[s_a V_a, s_b V_b, s_c V_c] = s_a s_b s_c det[V_a, V_b, V_c]: a sign flip is exact
+            det = (Vx[a, 0] * (Vx[b, 1] * Vx[c, 2] - Vx[b, 2] * Vx[c, 1])
+                   - Vx[b, 0] * (Vx[a, 1] * Vx[c, 2] - Vx[a, 2] * Vx[c, 1])
+                   + Vx[c, 0] * (Vx[a, 1] * Vx[b, 2] - Vx[a, 2] * Vx[b, 1])) * ssign[k]
+            lengths = Ln[a] * Ln[b] * Ln[c]
             if grouped:
                 if k % 4 == 0:
                     gdet = det
@@ -1181,13 +1204,13 @@ def scaled_jacobian_chunk(points, conn, ids, start, stop, G, factor, grouped, re
                 elif lengths > gbig:
                     gbig = lengths
                 if k % 4 == 3:
-                    v = factor * gdet / gbig if gbig > tiny else 0.0
-                    if v < best:
-                        best = v
+                    val = factor * gdet / gbig if gbig > tiny else 0.0
+                    if val < best:
+                        best = val
             else:
-                v = factor * det / lengths if lengths > tiny else 0.0
-                if v < best:
-                    best = v
+                val = factor * det / lengths if lengths > tiny else 0.0
+                if val < best:
+                    best = val
         if reflect and best > 1.0:
             best = 2.0 - best
         out[t] = best
