@@ -272,29 +272,14 @@ def _apply_factor(src, dst, M, nk, pre, post):
                 dst[base + r * post] = s
 
 
-@njit(cache=True, nogil=True)
-def _split_line(src, lo, hi, nk, pre, post, tri):
-    """de Casteljau at 1/2 along one line factor of degree nk - 1: the halves [0, 1/2] into lo and
-    [1/2, 1] into hi (tri: (nk,) scratch). Each step averages two numbers: the same convex combinations as
-    the factor's child matrices, in as many roundings as the degree."""
-    p = nk - 1
-    for i0 in range(pre):
-        for j in range(post):
-            base = i0 * nk * post + j
-            for r in range(nk):
-                tri[r] = src[base + r * post]
-            lo[base] = tri[0]
-            hi[base + p * post] = tri[p]
-            for level in range(1, nk):
-                for r in range(nk - level):
-                    tri[r] = 0.5 * (tri[r] + tri[r + 1])
-                lo[base + level * post] = tri[0]
-                hi[base + (p - level) * post] = tri[nk - level - 1]
-
-
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def _children(coef, out, work, S, nchildren, sizes, fdim, tri):
-    """All children's coefficients of one box into out[c], c row-major over the factors' child indices."""
+    """All children's coefficients of one box into out[c], c row-major over the factors' child indices.
+
+    A line factor of degree nk - 1 is halved by de Casteljau at 1/2 (each step averages two numbers: the same
+    convex combinations as the factor's child matrices, in as many roundings as the degree), in place: box t's
+    halves go to rows 2t and 2t + 1, boxes taken from the last down (each line is read whole before its halves
+    are written, so row 0 may be its own lower half). Other factors apply their child matrices from a copy."""
     nb = coef.shape[0]
     count = 1
     for i in range(nb):
@@ -304,16 +289,53 @@ def _children(coef, out, work, S, nchildren, sizes, fdim, tri):
         nk = sizes[k]
         post = nb // (pre * nk)
         nck = nchildren[k]
-        if nck > 1:
+        if nck > 1 and fdim[k] == 1 and nk == 3:  # degree 2 (hexahedra, pyramids, wedges): the steps written out
+            for t in range(count - 1, -1, -1):
+                lo = 2 * t
+                hi = lo + 1
+                for i0 in range(pre):
+                    for j in range(post):
+                        i_a = i0 * 3 * post + j
+                        i_b = i_a + post
+                        i_c = i_b + post
+                        a = out[t, i_a]
+                        b = out[t, i_b]
+                        c = out[t, i_c]
+                        m1 = 0.5 * (a + b)
+                        m2 = 0.5 * (b + c)
+                        mm = 0.5 * (m1 + m2)
+                        out[lo, i_a] = a
+                        out[lo, i_b] = m1
+                        out[lo, i_c] = mm
+                        out[hi, i_a] = mm
+                        out[hi, i_b] = m2
+                        out[hi, i_c] = c
+            count *= 2
+        elif nck > 1 and fdim[k] == 1:
+            p = nk - 1
+            for t in range(count - 1, -1, -1):
+                lo = 2 * t
+                hi = lo + 1
+                for i0 in range(pre):
+                    for j in range(post):
+                        base = i0 * nk * post + j
+                        for r in range(nk):
+                            tri[r] = out[t, base + r * post]
+                        out[lo, base] = tri[0]
+                        out[hi, base + p * post] = tri[p]
+                        for level in range(1, nk):
+                            for r in range(nk - level):
+                                tri[r] = 0.5 * (tri[r] + tri[r + 1])
+                            out[lo, base + level * post] = tri[0]
+                            out[hi, base + (p - level) * post] = tri[nk - level - 1]
+            count *= 2
+        elif nck > 1:
             for t in range(count):
                 for i in range(nb):
                     work[t, i] = out[t, i]
             for t in range(count):
-                if fdim[k] == 1:
-                    _split_line(work[t], out[2 * t], out[2 * t + 1], nk, pre, post, tri)
-                else:
-                    for c in range(nck):
-                        _apply_factor(work[t], out[t * nck + c], S[k, c], nk, pre, post)
+                for c in range(nck):
+                    _apply_factor(work[t], out[t * nck + c], S[k, c], nk, pre, post)
             count *= nck
         pre *= nk
     return count
@@ -332,6 +354,15 @@ def _compose(parent, child, out):
 def _line_weights(p, t, out):
     """Bernstein basis of degree p at t in [0, 1] into out[:p + 1] (non-negative)."""
     s = 1.0 - t
+    if p == 2:  # the loop below, written out (1.0 * x and 2.0 * x are exact: the same numbers)
+        out[0] = s * s
+        out[1] = 2.0 * (t * s)
+        out[2] = t * t
+        return
+    if p == 1:
+        out[0] = s
+        out[1] = t
+        return
     for i in range(p + 1):
         w = 1.0
         for _ in range(i):
@@ -401,14 +432,11 @@ def _taylor_bound(c, e, t, sizes, W, Wd, F3, F33, I3):
         _line_weights(p[a] - 1, t[a], Wd)
         s = 0.0
         dmax = 0.0
-        for i in range(n0):
-            for j in range(n1):
-                for k in range(n2):
-                    ia = i if a == 0 else (j if a == 1 else k)
-                    if ia == p[a]:
-                        continue
+        step = n1 * n2 if a == 0 else (n2 if a == 1 else 1)
+        for i in range(n0 - 1 if a == 0 else n0):  # every coefficient with a successor along a, in order
+            for j in range(n1 - 1 if a == 1 else n1):
+                for k in range(n2 - 1 if a == 2 else n2):
                     base = (i * n1 + j) * n2 + k
-                    step = n1 * n2 if a == 0 else (n2 if a == 1 else 1)
                     dlt = p[a] * (c[base + step] - c[base])
                     if abs(dlt) > dmax:
                         dmax = abs(dlt)
@@ -440,16 +468,13 @@ def _taylor_bound(c, e, t, sizes, W, Wd, F3, F33, I3):
             lo = np.inf
             hi = -np.inf
             amax = 0.0
-            for i in range(n0):
-                for j in range(n1):
-                    for k in range(n2):
-                        ia = i if a == 0 else (j if a == 1 else k)
-                        ib = i if b2 == 0 else (j if b2 == 1 else k)
-                        if a == b2:
-                            if ia > p[a] - 2:
-                                continue
-                        elif ia == p[a] or ib == p[b2]:
-                            continue
+            # every coefficient whose second difference along (a, b2) exists, in order
+            e0 = (2 if a == 0 else 0) if a == b2 else (1 if a == 0 or b2 == 0 else 0)
+            e1 = (2 if a == 1 else 0) if a == b2 else (1 if a == 1 or b2 == 1 else 0)
+            e2 = (2 if a == 2 else 0) if a == b2 else (1 if a == 2 or b2 == 2 else 0)
+            for i in range(n0 - e0):
+                for j in range(n1 - e1):
+                    for k in range(n2 - e2):
                         base = (i * n1 + j) * n2 + k
                         if a == b2:
                             h = fac * ((c[base + 2 * sa] - c[base + sa]) - (c[base + sa] - c[base]))
