@@ -890,6 +890,10 @@ def _polish(b, x0, M, exps, G, h, iterations, out, c, pw, Q, Z, Hr, Lc, v, g, H,
     for a in range(3):
         out[a] = x0[a]
     f = _mono_derivs(c, exps, out, g, H, pw)
+    csum = 0.0
+    for i in range(nb):
+        csum += abs(c[i])
+    noise = 16.0 * U * csum  # the rounding of a value: a smaller decrease cannot show
     ng = G.shape[0]
     act = np.zeros(ng, dtype=np.bool_)
     for _ in range(iterations):
@@ -927,9 +931,17 @@ def _polish(b, x0, M, exps, G, h, iterations, out, c, pw, Q, Z, Hr, Lc, v, g, H,
             break
         improved = False
         t = tmax
+        # a Newton step predicts the decrease -g.step / 2 of the quadratic model; where that is within the
+        # rounding of a value (at the minimum), no shorter step can show a decrease either: stop
+        small = ok and -0.5 * (g[0] * step[0] + g[1] * step[1] + g[2] * step[2]) * t <= noise
         for _h in range(30):
+            moved = False
             for a in range(3):
                 xt[a] = out[a] + t * step[a]
+                if xt[a] != out[a]:
+                    moved = True
+            if not moved:  # the step is below the points' spacing: shorter ones stay put as well
+                break
             for i in range(ng):  # clip onto the coordinate faces the step reached (exactly representable)
                 if abs(G[i, 0]) + abs(G[i, 1]) + abs(G[i, 2]) == 1.0:
                     for a in range(3):
@@ -940,6 +952,8 @@ def _polish(b, x0, M, exps, G, h, iterations, out, c, pw, Q, Z, Hr, Lc, v, g, H,
             if _inside(G, h, xt):
                 if _mono_value(c, exps, xt, pw) < f:
                     improved = True
+                    break
+                if small:
                     break
             t *= 0.5
         if not improved:
