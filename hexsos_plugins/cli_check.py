@@ -23,12 +23,12 @@ def _read_and_check(path, args):
     options; the scaled Jacobian rides along (``result.extra``)."""
     from .certify import _threads, check
 
-    mesh, orient = read_mesh(path, args.fix_orientation)
-    bar = Progress("checking", enabled=args.progress)
-    result = check(mesh.points, mesh.cells, method=args.method, relaxation=args.relaxation, progress=bar,
-                   jobs=args.jobs, processes=args.processes, scheduler=args.scheduler)
-    bar.close()
-    with _threads(args.jobs):  # the scaled Jacobian on the same threads as the kernel
+    with _threads(args.jobs):  # the orientation pass and the scaled Jacobian on the kernel's threads too
+        mesh, orient = read_mesh(path, args.fix_orientation)
+        bar = Progress("checking", enabled=args.progress)
+        result = check(mesh.points, mesh.cells, method=args.method, relaxation=args.relaxation, progress=bar,
+                       jobs=args.jobs, processes=args.processes, scheduler=args.scheduler)
+        bar.close()
         _add_quality(result, mesh.points, mesh.cells)
     return mesh, orient, result
 

@@ -111,8 +111,22 @@ def _face_nodes(el) -> tuple:
     return tuple(out)
 
 
+class _PerType(dict):
+    """{type name: fn(element)}, each computed on first use (exact arithmetic that every start would pay)."""
+
+    def __init__(self, fn):
+        super().__init__()
+        self._fn = fn
+
+    def __missing__(self, name):
+        if name not in ELEMENTS:
+            raise KeyError(name)
+        value = self[name] = self._fn(ELEMENTS[name])
+        return value
+
+
 #: For each checkable type, per corner face: all the cell's nodes on that face (corners first).
-FACE_NODES = {name: _face_nodes(el) for name, el in ELEMENTS.items()}
+FACE_NODES = _PerType(_face_nodes)
 
 
 def is_3d(cell_type: str) -> bool:

@@ -422,6 +422,44 @@ def test_numpy_msh_reader_refuses_truncated_files_and_declines_others(gm, tmp_pa
     assert_same_mesh(read_msh_binary(Path(gm["order1"]["41b"])), read_gmsh_api(Path(gm["order1"]["41b"])))
 
 
+@pytest.mark.parametrize("suffix", ["41b", "22b"])
+def test_numpy_msh_reader_keeps_nothing_of_the_mapped_file(gm, tmp_path, monkeypatch, suffix):
+    """The reader maps the file instead of copying it, and closes the mapping before it returns: a mesh read
+    does not change when its file is overwritten afterwards, nor when it is deleted. A reader that kept a view
+    of the mapping is read again from a copy (the fallback is exercised by a parse that leaks one)."""
+    import shutil
+
+    from hexsos_plugins.readers import msh_binary
+
+    path = tmp_path / f"m_{suffix}.msh"
+    shutil.copy(gm["order2"][suffix], path)
+    m = read_msh_binary(path)
+    keep = {"points": m.points.copy(), **{f"cells{i}": b.data.copy() for i, b in enumerate(m.cells)},
+            **{f"{k}{i}": np.array(v, copy=True) for k, vs in m.cell_data.items() for i, v in enumerate(vs)}}
+    raw = path.read_bytes()
+    path.write_bytes(raw.replace(b"\x00", b"\x07"))  # the same length, other numbers everywhere
+    now = {"points": m.points, **{f"cells{i}": b.data for i, b in enumerate(m.cells)},
+           **{f"{k}{i}": np.asarray(v) for k, vs in m.cell_data.items() for i, v in enumerate(vs)}}
+    assert keep.keys() == now.keys() and all(np.array_equal(keep[k], now[k]) for k in keep)
+    path.unlink()
+    assert np.array_equal(m.points, keep["points"])
+    # negative case: a parse that returns a view of the mapping is caught, and the mesh is read from a copy
+    path.write_bytes(raw)
+    real = msh_binary._parse
+    leaked = []
+
+    def leaky(buf):
+        mesh = real(buf)
+        if not isinstance(buf, bytes):
+            mesh.points = np.frombuffer(buf, dtype=np.uint8, count=8)  # a view of the mapping
+            leaked.append(True)
+        return mesh
+
+    monkeypatch.setattr(msh_binary, "_parse", leaky)
+    again = read_msh_binary(path)
+    assert leaked and np.array_equal(again.points, keep["points"])
+
+
 def test_gmsh_reader_is_not_tried_on_a_binary_file_the_numpy_reader_found_broken(gm, tmp_path, monkeypatch):
     import hexsos_plugins.readers as readers
 
