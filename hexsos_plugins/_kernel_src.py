@@ -1263,3 +1263,35 @@ def det_at_chunk(points, conn, ids, start, stop, dN, out):
     E = np.empty((3, 3))
     for t in range(start, stop):
         out[t] = _node_matrix(points, conn, ids[t], dN, E)
+
+
+@njit(cache=True, nogil=True)
+def world_chunk(v, k3, down, start, stop, out, bad):
+    """out[i] = v[i] 2^k3[i] for i in start:stop: exact where representable; else the nearest float of the same
+    sign (``down`` false: a value) or the largest float below (``down``: a lower bound), with bad[i] set where
+    the number is not representable (overflow; a value that underflows to 0; a lower bound below the normal
+    range that had to be rounded)."""
+    big = 1.7976931348623157e308
+    for i in range(start, stop):
+        x = v[i]
+        k = k3[i]
+        w = math.ldexp(x, k)
+        b = False
+        if math.isfinite(w):
+            if math.ldexp(w, -k) != x:  # inexact: w rounded (in the subnormal range)
+                if down:
+                    if math.ldexp(w, -k) > x:
+                        w = np.nextafter(w, -np.inf)
+                    b = abs(w) < 2.2250738585072014e-308
+                elif w == 0.0:
+                    w = math.copysign(5e-324, x)
+                    b = True
+        elif math.isfinite(x):  # overflow
+            if down:
+                w = big if x > 0.0 else -np.inf
+            else:
+                w = math.copysign(big, x)
+            b = True
+        out[i] = w
+        bad[i] = b
+

@@ -51,8 +51,6 @@ SOS_STATUS_NAMES = ("", "Solved", "AlmostSolved", "MaxIterations", "MaxTime", "N
 HEX_TYPES = ("hexahedron", "hexahedron20", "hexahedron27")
 
 _SLICE = 65536  # cells per kernel call (progress between calls; the kernel itself works in chunks of 512)
-_MAX_FLOAT = np.finfo(np.float64).max
-_TINY = 5e-324
 
 
 def _sos_code(status: str) -> int:
@@ -406,49 +404,6 @@ def _threads(jobs):
         kernel.set_threads(old)
 
 
-class _Powers:
-    """2^k3 and 2^-k3 of exponents k3 (all within float64's normal range) for :func:`_to_world`: a product by a
-    power of two rounds as ``np.ldexp`` does (one correctly rounded operation), at a fifth of its cost."""
-
-    def __init__(self, k3):
-        k3 = np.asarray(k3, dtype=np.int32)
-        self.up = np.ldexp(1.0, k3)
-        self.down = np.ldexp(1.0, -k3)
-
-    @staticmethod
-    def of(k3):
-        """The powers when every |k3| <= 1022 (both powers normal floats), else k3 itself."""
-        return _Powers(k3) if k3.size == 0 or int(np.abs(k3).max()) <= 1022 else k3
-
-
-def _to_world(v, k3, *, down: bool):
-    """Scaled values times 2^k3: exact where representable; else the nearest float of the same sign
-    (``down=False``) or the largest float below (``down=True``). Returns (values, unrepresentable)."""
-    with np.errstate(over="ignore", under="ignore", invalid="ignore"):
-        if isinstance(k3, _Powers):  # the usual case: 2^k3 and 2^-k3 are floats, a product by either is ldexp
-            w = v * k3.up
-            back = w * k3.down
-        else:
-            w = np.ldexp(v, k3)
-            back = np.ldexp(w, -k3)
-    if np.array_equal(back, v):  # every value exact (the usual case): nothing to round, nothing unrepresentable
-        return w, np.zeros(w.shape, dtype=bool)
-    inexact = np.isfinite(w) & (back != v)
-    over = ~np.isfinite(w) & np.isfinite(v)
-    if down:
-        lower = inexact & (back > v)
-        w[lower] = np.nextafter(w[lower], -np.inf)
-        w[over & (v > 0)] = _MAX_FLOAT
-        w[over & (v < 0)] = -np.inf
-        bad = over | (inexact & (np.abs(w) < 2.0**-1022))
-    else:
-        zero = (w == 0) & (v != 0)
-        w[zero] = np.copysign(_TINY, v[zero])
-        w[over] = np.copysign(_MAX_FLOAT, v[over])
-        bad = over | zero
-    return w, bad
-
-
 #: The second pass over brackets still open: the memory for live boxes per thread (the first pass keeps 256
 #: boxes), at most _WIDE_CAP boxes, and the box budget as a multiple of ``max_boxes``.
 _WIDE_BYTES = 64 * 2**20
@@ -515,11 +470,10 @@ def _check_block(P, conn, name, opts: _Options, progress=None, offset=0, total=N
     status[flat] = -1
     method[flat] = _FLAT
 
-    k3 = _Powers.of(3 * r["k"])
-    min_det, bad1 = _to_world(value, k3, down=False)
-    low_w, bad2 = _to_world(lower, k3, down=True)
-    corner, _ = _to_world(r["corner"], k3, down=False)
-    scale_w, _ = _to_world(scale, k3, down=False)
+    min_det, bad1 = kernel.to_world(value, r["k"], down=False)
+    low_w, bad2 = kernel.to_world(lower, r["k"], down=True)
+    corner, _ = kernel.to_world(r["corner"], r["k"], down=False)
+    scale_w, _ = kernel.to_world(scale, r["k"], down=False)
     unrep = bad1 | bad2
 
     # signs float64 could not settle (the bracket closed around 0, or the witness within its rounding bound of 0):

@@ -564,6 +564,22 @@ def det_at(points, conn, name, pcoords) -> np.ndarray:
     return out
 
 
+def _world_args(v, k3, down, out, bad, start, stop):
+    return (v, k3, bool(down), int(start), int(stop), out, bad)
+
+
+def to_world(v, k, *, down: bool):
+    """Scaled values v (the kernel's units) times 2^(3 k), compiled and threaded: exact where representable;
+    else the nearest float of the same sign (``down=False``) or the largest float below (``down=True``).
+    Returns (values, unrepresentable)."""
+    v = np.ascontiguousarray(v, dtype=np.float64)
+    k3 = np.ascontiguousarray(3 * np.asarray(k, dtype=np.int64))
+    out = np.empty_like(v)
+    bad = np.empty(v.shape, dtype=np.bool_)
+    _spread(_impl.world_chunk, v.size, lambda a, b: _world_args(v, k3, down, out, bad, a, b))
+    return out, bad
+
+
 def entry_point_arguments() -> dict:
     """Example arguments of every entry point of the compiled source (a trilinear hexahedron), by name: the
     ahead-of-time build derives the exported signatures from them."""
@@ -581,4 +597,6 @@ def entry_point_arguments() -> dict:
         "polish_many": _polish_args(b, X, t, 30, np.empty((1, 3)), np.empty(1)),
         "scaled_jacobian_chunk": _sj_args(P, conn, ids, "hexahedron", np.empty(1), 0, 1),
         "det_at_chunk": _det_at_args(P, conn, ids, np.zeros((8, 3)), np.empty(1), 0, 1),
+        "world_chunk": _world_args(np.zeros(1), np.zeros(1, dtype=np.int64), True, np.empty(1),
+                                   np.empty(1, dtype=np.bool_), 0, 1),
     }

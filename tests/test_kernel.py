@@ -280,27 +280,56 @@ def test_every_finite_input_gives_an_honest_answer():
         assert r.status[0] == 0 and r.lower_bound[0] <= r.min_det[0] < 0
 
 
-def test_world_units_by_powers_round_as_ldexp():
-    """The check scales its values back by products with 2^k3 and 2^-k3 (not ``np.ldexp``, five times slower):
-    bit-identical values and flags on adversarial values (results in the subnormal range, overflowing, zeros,
-    infinities, exponents at the ends of the range), both rounding directions; exponents beyond the normal range
-    fall back to ldexp."""
-    from hexsos_plugins.certify import _Powers, _to_world
+def _to_world_reference(v, k3, *, down):
+    """The conversion to world units with numpy's ldexp (what the check did before it was compiled)."""
+    with np.errstate(over="ignore", under="ignore", invalid="ignore"):
+        w = np.ldexp(v, k3)
+        back = np.ldexp(w, -k3)
+    inexact = np.isfinite(w) & (back != v)
+    over = ~np.isfinite(w) & np.isfinite(v)
+    if down:
+        lower = inexact & (back > v)
+        w[lower] = np.nextafter(w[lower], -np.inf)
+        w[over & (v > 0)] = np.finfo(np.float64).max
+        w[over & (v < 0)] = -np.inf
+        bad = over | (inexact & (np.abs(w) < 2.0**-1022))
+    else:
+        zero = (w == 0) & (v != 0)
+        w[zero] = np.copysign(5e-324, v[zero])
+        w[over] = np.copysign(np.finfo(np.float64).max, v[over])
+        bad = over | zero
+    return w, bad
 
+
+def test_world_units_round_as_ldexp_and_in_the_right_direction():
+    """The compiled conversion of the kernel's scaled values to world units (exponents 3k, on the kernel's
+    threads) is bit-identical to numpy's ldexp with the same rounding rules on adversarial values: results in
+    the subnormal range, overflowing, zeros, infinities, NaN, exponents far beyond the float range; a lower
+    bound is never rounded up and a value keeps its sign."""
     rng = np.random.default_rng(11)
     n = 20000
     v = rng.standard_normal(n) * 2.0 ** rng.integers(-1074, 1000, n).astype(float)
-    v[:8] = [0.0, -0.0, np.inf, -np.inf, 5e-324, -5e-324, 1.7e308, -2.2250738585072014e-308]
-    k3 = rng.integers(-1022, 1023, n)
-    k3[:8] = [-1022, 1022, 5, -5, 1022, -1022, 1022, -1022]
-    pw = _Powers.of(k3)
-    assert isinstance(pw, _Powers)
-    for down in (False, True):
-        w1, bad1 = _to_world(v.copy(), k3, down=down)
-        w2, bad2 = _to_world(v.copy(), pw, down=down)
-        assert np.array_equal(w1.view(np.int64), w2.view(np.int64)) and np.array_equal(bad1, bad2)
-    assert 0 < bad1.sum() < n  # the adversarial values do reach the rounding branches
-    assert not isinstance(_Powers.of(np.array([3, 1023])), _Powers)
+    v[:9] = [0.0, -0.0, np.inf, -np.inf, 5e-324, -5e-324, 1.7e308, -2.2250738585072014e-308, np.nan]
+    k = rng.integers(-400, 400, n)
+    k[:9] = [-340, 340, 5, -5, 340, -340, 1000, -1000, 3]
+    old = kernel.set_threads(2)
+    try:
+        for down in (False, True):
+            want_w, want_bad = _to_world_reference(v.copy(), 3 * k, down=down)
+            w, bad = kernel.to_world(v, k, down=down)
+            assert np.array_equal(w.view(np.int64), want_w.view(np.int64)) and np.array_equal(bad, want_bad)
+            fin = np.flatnonzero(np.isfinite(w) & np.isfinite(v) & (w != v))  # rounded or scaled
+            rounded = [i for i in fin if Fraction(float(w[i])) != Fraction(float(v[i])) * Fraction(2) ** int(3 * k[i])]
+            assert len(rounded) > 20
+            for i in rounded:
+                exact = Fraction(float(v[i])) * Fraction(2) ** int(3 * k[i])
+                if down:  # a lower bound never rounds up
+                    assert Fraction(float(w[i])) < exact
+                else:  # a value keeps its sign
+                    assert np.sign(w[i]) == np.sign(v[i]) != 0
+    finally:
+        kernel.set_threads(old)
+    assert 0 < bad.sum() < n  # the adversarial values do reach the rounding branches
 
 
 def test_flatness_scale_is_not_a_free_knob():

@@ -42,13 +42,13 @@ def test_sos_on_two_threads_agrees_bit_for_bit(monkeypatch):
 
     P, H = hexes_to_mesh(random_hexes(64, sigma=0.3, seed=62))
     seen = set()
-    solve = sos.SOSSolver.solve
+    solve = sos.SOSSolver.solve_many
 
     def spy(self, *a, **k):
         seen.add(threading.current_thread().name)
         return solve(self, *a, **k)
 
-    monkeypatch.setattr(sos.SOSSolver, "solve", spy)
+    monkeypatch.setattr(sos.SOSSolver, "solve_many", spy)
     one = hs.check(P, H, method="sos", jobs=1)
     assert seen == {threading.current_thread().name}
     seen.clear()
