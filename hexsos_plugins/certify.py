@@ -296,8 +296,8 @@ def _indices(conn, what, n_nodes, n_points) -> np.ndarray:
         else:
             raise InvalidInputError(f"{what}: expected integer node indices, found dtype {H.dtype}")
     H = np.ascontiguousarray(H, dtype=np.int64)
-    bad = (H < 0) | (H >= n_points)
-    if bad.any():
+    if int(H.min()) < 0 or int(H.max()) >= n_points:  # two reductions; the cell is found only when one is bad
+        bad = (H < 0) | (H >= n_points)
         m = int(np.flatnonzero(bad.any(axis=1))[0])
         raise InvalidInputError(f"{what}: node index out of range in cell {m}: {H[m].tolist()} (there are {n_points} "
                                 "points)")
@@ -305,6 +305,8 @@ def _indices(conn, what, n_nodes, n_points) -> np.ndarray:
 
 
 def _finite(P, H, what):
+    if np.isfinite(P).all():  # the usual case, in one flat pass
+        return
     fin = np.isfinite(P).all(axis=1)
     if not fin.all():  # unreferenced points may be anything; referenced ones must be finite
         ok = fin[H]
