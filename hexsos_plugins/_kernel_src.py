@@ -1266,15 +1266,15 @@ def det_at_chunk(points, conn, ids, start, stop, dN, out):
 
 
 @njit(cache=True, nogil=True)
-def world_chunk(v, k3, down, start, stop, out, bad):
-    """out[i] = v[i] 2^k3[i] for i in start:stop: exact where representable; else the nearest float of the same
+def world_chunk(v, kexp, down, start, stop, out, bad):
+    """out[i] = v[i] 2^(3 kexp[i]) for i in start:stop (out may be v): exact where representable; else the nearest float of the same
     sign (``down`` false: a value) or the largest float below (``down``: a lower bound), with bad[i] set where
     the number is not representable (overflow; a value that underflows to 0; a lower bound below the normal
     range that had to be rounded)."""
     big = 1.7976931348623157e308
     for i in range(start, stop):
         x = v[i]
-        k = k3[i]
+        k = 3 * kexp[i]
         w = math.ldexp(x, k)
         b = False
         if math.isfinite(w):

@@ -472,16 +472,18 @@ def _check_block(P, conn, name, opts: _Options, progress=None, offset=0, total=N
     status[flat] = -1
     method[flat] = _FLAT
 
-    min_det, bad1 = kernel.to_world(value, r["k"], down=False)
-    low_w, bad2 = kernel.to_world(lower, r["k"], down=True)
-    corner, _ = kernel.to_world(r["corner"], r["k"], down=False)
-    scale_w, _ = kernel.to_world(scale, r["k"], down=False)
-    unrep = bad1 | bad2
-
     # signs float64 could not settle (the bracket closed around 0, or the witness within its rounding bound of 0):
     # exact rational arithmetic on the input coordinates. Cells left open by the search limits are not sent
     # (they stay undecided: raise max_boxes / max_depth)
     near = np.flatnonzero((status == -1) & ~flat & (r["closed"] | (np.abs(value) <= 64.0 * err)))
+
+    # world units, in place: the scaled values are not needed after this
+    k = r["k"]
+    min_det, bad1 = kernel.to_world(value, k, down=False, out=value)
+    low_w, bad2 = kernel.to_world(lower, k, down=True, out=lower)
+    corner, _ = kernel.to_world(r["corner"], k, down=False, out=r["corner"])
+    scale_w, _ = kernel.to_world(scale, k, down=False, out=scale)
+    unrep = bad1 | bad2
     if near.size:
         from .exact import decide, round_down, round_nearest
 

@@ -564,19 +564,21 @@ def det_at(points, conn, name, pcoords) -> np.ndarray:
     return out
 
 
-def _world_args(v, k3, down, out, bad, start, stop):
-    return (v, k3, bool(down), int(start), int(stop), out, bad)
+def _world_args(v, k, down, out, bad, start, stop):
+    return (v, k, bool(down), int(start), int(stop), out, bad)
 
 
-def to_world(v, k, *, down: bool):
+def to_world(v, k, *, down: bool, out=None):
     """Scaled values v (the kernel's units) times 2^(3 k), compiled and threaded: exact where representable;
     else the nearest float of the same sign (``down=False``) or the largest float below (``down=True``).
-    Returns (values, unrepresentable)."""
+    Returns (values, unrepresentable); ``out`` (v itself, say: each value is read before it is written) receives
+    the values instead of a new array."""
     v = np.ascontiguousarray(v, dtype=np.float64)
-    k3 = np.ascontiguousarray(3 * np.asarray(k, dtype=np.int64))
-    out = np.empty_like(v)
+    k = np.ascontiguousarray(k, dtype=np.int64)
+    if out is None:
+        out = np.empty_like(v)
     bad = np.empty(v.shape, dtype=np.bool_)
-    _spread(_impl.world_chunk, v.size, lambda a, b: _world_args(v, k3, down, out, bad, a, b))
+    _spread(_impl.world_chunk, v.size, lambda a, b: _world_args(v, k, down, out, bad, a, b))
     return out, bad
 
 
