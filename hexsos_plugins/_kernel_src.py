@@ -879,8 +879,10 @@ def _polish(b, x0, M, exps, G, h, iterations, out, c, pw, Q, Z, Hr, Lc, v, g, H,
     Each iteration takes as active the faces the point is on where the descent direction leaves, a basis Z
     of the directions along them, a Newton step on Z (steepest descent where the reduced Hessian is not
     positive definite); a face the step would cross at once joins the active set and the step is recomputed;
-    then the longest feasible step is halved until the value falls. out receives the best point (x0 if
-    nothing lowers the value); the value there (monomial form, for ranking only) is returned."""
+    then the longest feasible step is halved until the value falls. It stops when no step lowers the value,
+    when a Newton step's predicted decrease is within the rounding of a value (at a minimum: no shorter step
+    could show one), or when a step no longer moves the point. out receives the best point (x0 if nothing
+    lowers the value); the value there (monomial form, for ranking only) is returned."""
     nb = b.shape[0]
     for i in range(nb):
         s = 0.0
