@@ -1274,15 +1274,30 @@ def world_chunk(v, kexp, down, start, stop, out, bad):
     the number is not representable (overflow; a value that underflows to 0; a lower bound below the normal
     range that had to be rounded)."""
     big = 1.7976931348623157e308
+    last = -(1 << 40)
+    up = 1.0
+    dn = 1.0
+    fast = False
     for i in range(start, stop):
         x = v[i]
         k = 3 * kexp[i]
-        w = math.ldexp(x, k)
+        if k != last:  # neighbouring cells share their exponent: the powers of two once per run of them
+            last = k
+            fast = -1022 <= k <= 1022
+            if fast:
+                up = math.ldexp(1.0, k)
+                dn = math.ldexp(1.0, -k)
+        if fast:  # a product by a power of two is one correctly rounded operation, as ldexp
+            w = x * up
+            back = w * dn
+        else:
+            w = math.ldexp(x, k)
+            back = math.ldexp(w, -k)
         b = False
         if math.isfinite(w):
-            if math.ldexp(w, -k) != x:  # inexact: w rounded (in the subnormal range)
+            if back != x:  # inexact: w rounded (in the subnormal range)
                 if down:
-                    if math.ldexp(w, -k) > x:
+                    if back > x:
                         w = np.nextafter(w, -np.inf)
                     b = abs(w) < 2.2250738585072014e-308
                 elif w == 0.0:
