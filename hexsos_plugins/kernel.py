@@ -569,16 +569,17 @@ def _world_args(v, k, down, out, bad, start, stop):
 
 
 def to_world(v, k, *, down: bool, out=None):
-    """Scaled values v (the kernel's units) times 2^(3 k), compiled and threaded: exact where representable;
-    else the nearest float of the same sign (``down=False``) or the largest float below (``down=True``).
-    Returns (values, unrepresentable); ``out`` (v itself, say: each value is read before it is written) receives
-    the values instead of a new array."""
+    """Scaled values v (the kernel's units) times 2^(3 k), compiled: exact where representable; else the nearest
+    float of the same sign (``down=False``) or the largest float below (``down=True``). Returns (values,
+    unrepresentable); ``out`` (v itself, say: each value is read before it is written) receives the values
+    instead of a new array. One thread: a product per value (2.5 ms per million) is less than a pool's round
+    trip."""
     v = np.ascontiguousarray(v, dtype=np.float64)
     k = np.ascontiguousarray(k, dtype=np.int64)
     if out is None:
         out = np.empty_like(v)
     bad = np.empty(v.shape, dtype=np.bool_)
-    _spread(_impl.world_chunk, v.size, lambda a, b: _world_args(v, k, down, out, bad, a, b))
+    _impl.world_chunk(*_world_args(v, k, down, out, bad, 0, v.size))
     return out, bad
 
 

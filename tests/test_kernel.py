@@ -302,8 +302,8 @@ def _to_world_reference(v, k3, *, down):
 
 
 def test_world_units_round_as_ldexp_and_in_the_right_direction():
-    """The compiled conversion of the kernel's scaled values to world units (exponents 3k, on the kernel's
-    threads) is bit-identical to numpy's ldexp with the same rounding rules on adversarial values: results in
+    """The compiled conversion of the kernel's scaled values to world units (exponents 3k; products by powers
+    of two within the normal range, ldexp beyond it) is bit-identical to numpy's ldexp with the same rounding rules on adversarial values: results in
     the subnormal range, overflowing, zeros, infinities, NaN, exponents far beyond the float range; a lower
     bound is never rounded up and a value keeps its sign."""
     rng = np.random.default_rng(11)
@@ -312,23 +312,20 @@ def test_world_units_round_as_ldexp_and_in_the_right_direction():
     v[:9] = [0.0, -0.0, np.inf, -np.inf, 5e-324, -5e-324, 1.7e308, -2.2250738585072014e-308, np.nan]
     k = rng.integers(-400, 400, n)
     k[:9] = [-340, 340, 5, -5, 340, -340, 1000, -1000, 3]
-    old = kernel.set_threads(2)
-    try:
-        for down in (False, True):
-            want_w, want_bad = _to_world_reference(v.copy(), 3 * k, down=down)
-            w, bad = kernel.to_world(v, k, down=down)
-            assert np.array_equal(w.view(np.int64), want_w.view(np.int64)) and np.array_equal(bad, want_bad)
-            fin = np.flatnonzero(np.isfinite(w) & np.isfinite(v) & (w != v))  # rounded or scaled
-            rounded = [i for i in fin if Fraction(float(w[i])) != Fraction(float(v[i])) * Fraction(2) ** int(3 * k[i])]
-            assert len(rounded) > 20
-            for i in rounded:
-                exact = Fraction(float(v[i])) * Fraction(2) ** int(3 * k[i])
-                if down:  # a lower bound never rounds up
-                    assert Fraction(float(w[i])) < exact
-                else:  # a value keeps its sign
-                    assert np.sign(w[i]) == np.sign(v[i]) != 0
-    finally:
-        kernel.set_threads(old)
+    # exponents changing at every value, and in runs (the powers of two are formed once per run)
+    for down, k in ((False, k), (True, k), (False, np.sort(k)), (True, np.sort(k))):
+        want_w, want_bad = _to_world_reference(v.copy(), 3 * k, down=down)
+        w, bad = kernel.to_world(v, k, down=down)
+        assert np.array_equal(w.view(np.int64), want_w.view(np.int64)) and np.array_equal(bad, want_bad)
+        fin = np.flatnonzero(np.isfinite(w) & np.isfinite(v) & (w != v))  # rounded or scaled
+        rounded = [i for i in fin if Fraction(float(w[i])) != Fraction(float(v[i])) * Fraction(2) ** int(3 * k[i])]
+        assert len(rounded) > 20
+        for i in rounded:
+            exact = Fraction(float(v[i])) * Fraction(2) ** int(3 * k[i])
+            if down:  # a lower bound never rounds up
+                assert Fraction(float(w[i])) < exact
+            else:  # a value keeps its sign
+                assert np.sign(w[i]) == np.sign(v[i]) != 0
     assert 0 < bad.sum() < n  # the adversarial values do reach the rounding branches
 
 
