@@ -29,11 +29,13 @@ def _scaled_differences(points, conn, m, n, D):
     """D[i] = (X_i - X_0) * 2^-k for the nodes of cell m; returns k (the cell's extent * 2^-k is in [1, 2)),
     or _NO_EXTENT for a cell whose nodes all coincide (then D = 0)."""
     ext = 0.0
-    for a in range(3):
+    for a in range(3):  # the coordinates gathered once, into D
         lo = points[conn[m, 0], a]
         hi = lo
+        D[0, a] = lo
         for i in range(1, n):
             v = points[conn[m, i], a]
+            D[i, a] = v
             if v < lo:
                 lo = v
             if v > hi:
@@ -56,10 +58,10 @@ def _scaled_differences(points, conn, m, n, D):
         f1 = math.ldexp(1.0, 600)
         f2 = math.ldexp(1.0, -k - 600)
     for a in range(3):
-        s0 = points[conn[m, 0], a] * f1 * f2
+        s0 = D[0, a] * f1 * f2
         D[0, a] = 0.0
         for i in range(1, n):
-            D[i, a] = points[conn[m, i], a] * f1 * f2 - s0
+            D[i, a] = D[i, a] * f1 * f2 - s0
     return k
 
 
