@@ -139,10 +139,11 @@ def _cell_coefficients(points, conn, m, cptr, cidx_, cval, col_a, col_b, col_w, 
     # is in the per-type constant c_abs). Where every control point is a node (linear cells) the columns read
     # the nodes themselves: no copy, no error terms (they would all be 0)
     nctrl = P.shape[0]
-    nodes_only = cptr[nctrl] == nctrl
-    for p in range(nctrl if nodes_only else 0):
-        if cval[p] != 1.0:
+    nodes_only = True
+    for r in range(nctrl):
+        if cptr[r + 1] - cptr[r] != 1 or cval[cptr[r]] != 1.0:
             nodes_only = False
+            break
     for r in range(0 if nodes_only else nctrl):
         p0, p1 = cptr[r], cptr[r + 1]
         if p1 - p0 == 1 and cval[p0] == 1.0:  # a control point that is a node (linear cells, corners): exact
