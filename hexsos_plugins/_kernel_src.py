@@ -137,13 +137,16 @@ def _cell_coefficients(points, conn, m, cptr, cidx_, cval, col_a, col_b, col_w, 
         return 0.0, 0, 0.0, True
     # control points and the bounds of their rounding (per component; relative terms only: every underflow term
     # is in the per-type constant c_abs). Where every control point is a node (linear cells) the columns read
-    # the nodes themselves: no copy, no error terms (they would all be 0)
+    # the nodes themselves (no copy) and every control point's error is 0
     nctrl = P.shape[0]
     nodes_only = True
     for r in range(nctrl):
         if cptr[r + 1] - cptr[r] != 1 or cval[cptr[r]] != 1.0:
             nodes_only = False
             break
+    if nodes_only:
+        for r in range(nctrl):
+            eP[r, 0] = eP[r, 1] = eP[r, 2] = 0.0
     for r in range(0 if nodes_only else nctrl):
         p0, p1 = cptr[r], cptr[r + 1]
         if p1 - p0 == 1 and cval[p0] == 1.0:  # a control point that is a node (linear cells, corners): exact
@@ -168,40 +171,19 @@ def _cell_coefficients(points, conn, m, cptr, cidx_, cval, col_a, col_b, col_w, 
         c = (p1 - p0 + 3.0) * U
         eP[r, 0], eP[r, 1], eP[r, 2] = c * t0, c * t1, c * t2
     # the columns' coefficients, their largest magnitudes A and errors E per (component, direction)
+    src = D if nodes_only else P
     for d in range(3):
         a0 = a1 = a2 = 0.0
         e0 = e1 = e2 = 0.0
-        if nodes_only:  # the same numbers as below with P = the nodes and eP = 0
-            for e in range(col_off[d], col_off[d + 1]):
-                wa = col_w[e]
-                ia = cidx_[col_a[e]]
-                ib = cidx_[col_b[e]]
-                v0 = wa * (D[ib, 0] - D[ia, 0])
-                v1 = wa * (D[ib, 1] - D[ia, 1])
-                v2 = wa * (D[ib, 2] - D[ia, 2])
-                col[e, 0] = v0
-                col[e, 1] = v1
-                col[e, 2] = v2
-                v0 = abs(v0)
-                v1 = abs(v1)
-                v2 = abs(v2)
-                a0 = max(a0, v0)
-                a1 = max(a1, v1)
-                a2 = max(a2, v2)
-                e0 = max(e0, U * v0)
-                e1 = max(e1, U * v1)
-                e2 = max(e2, U * v2)
-            A[0, d], A[1, d], A[2, d] = a0, a1, a2
-            f = 1.0 + 4.0 * U
-            E[0, d], E[1, d], E[2, d] = e0 * f, e1 * f, e2 * f
-            continue
         for e in range(col_off[d], col_off[d + 1]):
             wa = col_w[e]
             ia = col_a[e]
             ib = col_b[e]
-            v0 = wa * (P[ib, 0] - P[ia, 0])
-            v1 = wa * (P[ib, 1] - P[ia, 1])
-            v2 = wa * (P[ib, 2] - P[ia, 2])
+            ra = cidx_[ia] if nodes_only else ia  # the rows of src holding the control points
+            rb = cidx_[ib] if nodes_only else ib
+            v0 = wa * (src[rb, 0] - src[ra, 0])
+            v1 = wa * (src[rb, 1] - src[ra, 1])
+            v2 = wa * (src[rb, 2] - src[ra, 2])
             col[e, 0] = v0
             col[e, 1] = v1
             col[e, 2] = v2
