@@ -78,18 +78,27 @@ def _svec_index(n: int):
 def svec(S) -> np.ndarray:
     """Clarabel's vectorization of a symmetric n x n matrix: upper triangle column by column,
     off-diagonal entries times sqrt(2)."""
-    S = np.asarray(S, dtype=np.float64)
-    rows, cols, w = _svec_index(S.shape[0])
-    return S[rows, cols] * w
+    return _svec_many(np.asarray(S, dtype=np.float64)[None])[0]
 
 
 def smat(v, n: int) -> np.ndarray:
     """Inverse of :func:`svec`."""
+    return _smat_many(np.asarray(v, dtype=np.float64)[None], n)[0]
+
+
+def _svec_many(S) -> np.ndarray:
+    """:func:`svec` of a stack (N, n, n)."""
+    rows, cols, w = _svec_index(S.shape[1])
+    return S[:, rows, cols] * w
+
+
+def _smat_many(V, n: int) -> np.ndarray:
+    """:func:`smat` of a stack of vectors (N, n(n+1)/2)."""
     rows, cols, w = _svec_index(n)
-    S = np.empty((n, n))
-    vals = np.asarray(v, dtype=np.float64) / w
-    S[rows, cols] = vals
-    S[cols, rows] = vals
+    S = np.empty((V.shape[0], n, n))
+    vals = V / w
+    S[:, rows, cols] = vals
+    S[:, cols, rows] = vals
     return S
 
 
@@ -419,19 +428,3 @@ class SOSBatch:
     lower: np.ndarray = None  # certified lower bounds (with coeff_err)
     gram: list = field(repr=False, default=None)  # per block (N, n, n) (keep=True)
     moments: np.ndarray = field(repr=False, default=None)  # (N, support) (keep=True)
-
-
-def _svec_many(S) -> np.ndarray:
-    """:func:`svec` of a stack (N, n, n)."""
-    rows, cols, w = _svec_index(S.shape[1])
-    return S[:, rows, cols] * w
-
-
-def _smat_many(V, n: int) -> np.ndarray:
-    """:func:`smat` of a stack of vectors (N, n(n+1)/2)."""
-    rows, cols, w = _svec_index(n)
-    S = np.empty((V.shape[0], n, n))
-    vals = V / w
-    S[:, rows, cols] = vals
-    S[:, cols, rows] = vals
-    return S
