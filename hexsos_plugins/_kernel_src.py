@@ -1191,24 +1191,6 @@ def polish_many(b, X0, M, exps, G, h, iterations, fdim, fslot, fexp, fcoef, size
             vals[m] = v_old
 
 
-@njit(cache=True, nogil=True, inline="always")
-def _node_matrix(points, conn, m, G, E):
-    """E[a, d] = sum_i G[i, d] x_i[a] over the nodes of cell m (G (n, 3): one sample's weights), zero weights
-    skipped; returns det E."""
-    for a in range(3):
-        for d in range(3):
-            E[a, d] = 0.0
-    for i in range(conn.shape[1]):
-        node = conn[m, i]
-        for d in range(3):
-            w = G[i, d]
-            if w != 0.0:
-                for a in range(3):
-                    E[a, d] += w * points[node, a]
-    return (E[0, 0] * (E[1, 1] * E[2, 2] - E[1, 2] * E[2, 1]) - E[0, 1] * (E[1, 0] * E[2, 2] - E[1, 2] * E[2, 0])
-            + E[0, 2] * (E[1, 0] * E[2, 1] - E[1, 1] * E[2, 0]))
-
-
 @njit(cache=True, nogil=True)
 def scaled_jacobian_chunk(points, conn, ids, start, stop, vptr, vnode, vw, samp, ssign, factor, grouped, reflect,
                           out):
@@ -1278,15 +1260,27 @@ def det_at_chunk(points, conn, ids, start, stop, dN, out):
     (the orientation of a file's node order), never a certificate."""
     E = np.empty((3, 3))
     for t in range(start, stop):
-        out[t] = _node_matrix(points, conn, ids[t], dN, E)
+        m = ids[t]
+        for a in range(3):
+            for d in range(3):
+                E[a, d] = 0.0
+        for i in range(conn.shape[1]):  # zero weights skipped
+            node = conn[m, i]
+            for d in range(3):
+                w = dN[i, d]
+                if w != 0.0:
+                    for a in range(3):
+                        E[a, d] += w * points[node, a]
+        out[t] = (E[0, 0] * (E[1, 1] * E[2, 2] - E[1, 2] * E[2, 1]) - E[0, 1] * (E[1, 0] * E[2, 2] - E[1, 2] * E[2, 0])
+                  + E[0, 2] * (E[1, 0] * E[2, 1] - E[1, 1] * E[2, 0]))
 
 
 @njit(cache=True, nogil=True)
 def world_chunk(v, kexp, down, start, stop, out, bad):
-    """out[i] = v[i] 2^(3 kexp[i]) for i in start:stop (out may be v): exact where representable; else the nearest float of the same
-    sign (``down`` false: a value) or the largest float below (``down``: a lower bound), with bad[i] set where
-    the number is not representable (overflow; a value that underflows to 0; a lower bound below the normal
-    range that had to be rounded)."""
+    """out[i] = v[i] 2^(3 kexp[i]) for i in start:stop (out may be v): exact where representable; else the
+    nearest float of the same sign (``down`` false: a value) or the largest float below (``down``: a lower
+    bound), with bad[i] set where the number is not representable (overflow; a value that underflows to 0; a
+    lower bound below the normal range that had to be rounded)."""
     big = 1.7976931348623157e308
     last = -(1 << 40)
     up = 1.0

@@ -483,35 +483,31 @@ def polish(b, X0, name, *, iterations=30):
     return out, vals
 
 
-_SJ_TABLES = {}
-
-
+@lru_cache(maxsize=None)
 def sj_tables(name):
     """The scaled Jacobian's sample matrices G (K, n, 3) of :data:`quality.SAMPLES` as distinct columns up to
     sign: (vptr, vnode, vw) the columns' nonzero weights in node order, samp (K, 3) each sample's columns,
     ssign (K,) the product of their signs, and the ideal cell's factor."""
-    if name not in _SJ_TABLES:
-        from .quality import SAMPLES
+    from .quality import SAMPLES
 
-        G, factor = SAMPLES[name]
-        cols, samp, ssign = [], np.zeros((G.shape[0], 3), dtype=np.int64), np.ones(G.shape[0])
-        for k in range(G.shape[0]):
-            for d in range(3):
-                c = np.asarray(G[k][:, d], dtype=np.float64)
-                for i, e in enumerate(cols):
-                    if np.array_equal(e, c) or np.array_equal(e, -c):
-                        samp[k, d] = i
-                        ssign[k] *= 1.0 if np.array_equal(e, c) else -1.0
-                        break
-                else:
-                    cols.append(c)
-                    samp[k, d] = len(cols) - 1
-        nz = [np.flatnonzero(c) for c in cols]
-        vptr = np.cumsum([0] + [len(z) for z in nz]).astype(np.int64)
-        vnode = np.concatenate(nz).astype(np.int64)
-        vw = np.concatenate([c[z] for c, z in zip(cols, nz)])
-        _SJ_TABLES[name] = (vptr, vnode, vw, samp, ssign, float(factor))
-    return _SJ_TABLES[name]
+    G, factor = SAMPLES[name]
+    cols, samp, ssign = [], np.zeros((G.shape[0], 3), dtype=np.int64), np.ones(G.shape[0])
+    for k in range(G.shape[0]):
+        for d in range(3):
+            c = np.asarray(G[k][:, d], dtype=np.float64)
+            for i, e in enumerate(cols):
+                if np.array_equal(e, c) or np.array_equal(e, -c):
+                    samp[k, d] = i
+                    ssign[k] *= 1.0 if np.array_equal(e, c) else -1.0
+                    break
+            else:
+                cols.append(c)
+                samp[k, d] = len(cols) - 1
+    nz = [np.flatnonzero(c) for c in cols]
+    vptr = np.cumsum([0] + [len(z) for z in nz]).astype(np.int64)
+    vnode = np.concatenate(nz).astype(np.int64)
+    vw = np.concatenate([c[z] for c, z in zip(cols, nz)])
+    return vptr, vnode, vw, samp, ssign, float(factor)
 
 
 def _sj_args(points, conn, ids, name, out, start, stop):
