@@ -1270,3 +1270,12 @@ def products(gid, col, X, b):
         _products_hexahedron(col, X, b)
         return True
     return False
+
+
+@njit(cache=True, nogil=True, inline="always")
+def products_only(gid, col, X, b):
+    """products for the types without generated columns (the others take both, in their own loop)."""
+    if gid == 2:
+        _products_tetra10(col, X, b)
+        return True
+    return False

@@ -18,6 +18,7 @@ from numba import njit
 from ._kernel_gen import columns as _generated_columns
 from ._kernel_gen import has_columns as _has_generated_columns
 from ._kernel_gen import products as _generated_products
+from ._kernel_gen import products_only as _generated_products_only
 
 U = 2.0**-53  # unit roundoff
 ETA = 2.0**-1074  # smallest subnormal: bounds the error of any rounding in the subnormal range
@@ -191,37 +192,9 @@ def _table_columns(D, cptr, cidx_, cval, col_a, col_b, col_w, col_off, P, eP, co
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _cell_coefficients(points, conn, m, cptr, cidx_, cval, col_a, col_b, col_w, col_off, xp, xi, xj, xw, dp, di, dj,
-                       dw, consts, D, P, eP, col, X, b, A, E, generated):
-    """det J's Bernstein coefficients b of cell m, by Bernstein products of the Jacobian's columns.
-
-    Steps: node offsets D (scaled by 2^-k), control points P = C D, column coefficients w (P_b - P_a), the
-    cross product of columns 1 and 2 (product table x*), its dot product with column 0 (table d*). Returns
-    (err, k, size, degenerate): err bounds |b - b_exact| (in the scaled units, det J times 2^-3k) for the cell
-    as given; size = perm(A) with A the largest |column coefficient| per component and direction (det J's
-    terms); degenerate: every term of det J is exactly 0 (the cell lies in a plane or less).
-
-    generated: the type has generated columns and products (_kernel_gen: the linear types; the same numbers as
-    the table loops, bit for bit); the caller decides it once per loop, see _block_coefficients."""
-    n = D.shape[0]
-    k = _scaled_differences(points, conn, m, n, D)
-    nb = b.shape[0]
-    if k == _NO_EXTENT:
-        for i in range(nb):
-            b[i] = 0.0
-        return 0.0, 0, 0.0, True
-    gid = int(consts[6])
-    # the columns' coefficients col, their largest magnitudes A and errors E per (component, direction), then
-    # X = column 1 x column 2 (each component a difference of two Bernstein products) and b = column 0 . X:
-    # generated straight-line code where the type has it, else the loops over the tables (products sorted by
-    # output coefficient, xp / dp their row pointers)
-    if generated:
-        _generated_columns(gid, D, col, A, E)
-        _generated_products(gid, col, X, b)
-    else:
-        _table_columns(D, cptr, cidx_, cval, col_a, col_b, col_w, col_off, P, eP, col, A, E)
-        if not _generated_products(gid, col, X, b):
-            _table_products(col, X, b, col_off, xp, xi, xj, xw, dp, di, dj, dw)
+def _size_and_error(A, E, consts):
+    """(err, size, degenerate) of a cell's coefficients from its columns' bounds A and errors E (see
+    _cell_coefficients)."""
     size = _perm(A)
     # exactly degenerate: every term of det J has a factor that is exactly 0 (a cell in a plane, a line, ...);
     # a size that merely underflows is not that
@@ -235,21 +208,63 @@ def _cell_coefficients(points, conn, m, cptr, cidx_, cval, col_a, col_b, col_w, 
     c_rel, c_abs = consts[0], consts[1]
     growth = _perm_growth(A, E)
     err = (growth + c_rel * U * (size + growth)) * (1.0 + 1e-6)  # (the margin covers this formula's rounding)
-    return err + c_abs * ETA, k, size, degenerate
+    return err + c_abs * ETA, size, degenerate
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _cell_coefficients(points, conn, m, cptr, cidx_, cval, col_a, col_b, col_w, col_off, xp, xi, xj, xw, dp, di, dj,
+                       dw, consts, D, P, eP, col, X, b, A, E):
+    """det J's Bernstein coefficients b of cell m, by Bernstein products of the Jacobian's columns.
+
+    Steps: node offsets D (scaled by 2^-k), control points P = C D, column coefficients w (P_b - P_a), the
+    cross product of columns 1 and 2 (product table x*), its dot product with column 0 (table d*). Returns
+    (err, k, size, degenerate): err bounds |b - b_exact| (in the scaled units, det J times 2^-3k) for the cell
+    as given; size = perm(A) with A the largest |column coefficient| per component and direction (det J's
+    terms); degenerate: every term of det J is exactly 0 (the cell lies in a plane or less). The columns by
+    loops over the tables, the products by generated code where the type has it (_kernel_gen), else loops
+    (sorted by output coefficient, xp / dp their row pointers); _generated_cell is the same for the types
+    whose columns are generated too."""
+    n = D.shape[0]
+    k = _scaled_differences(points, conn, m, n, D)
+    if k == _NO_EXTENT:
+        for i in range(b.shape[0]):
+            b[i] = 0.0
+        return 0.0, 0, 0.0, True
+    _table_columns(D, cptr, cidx_, cval, col_a, col_b, col_w, col_off, P, eP, col, A, E)
+    # X = column 1 x column 2 (each component a difference of two Bernstein products), then b = column 0 . X
+    if not _generated_products_only(int(consts[6]), col, X, b):
+        _table_products(col, X, b, col_off, xp, xi, xj, xw, dp, di, dj, dw)
+    err, size, degenerate = _size_and_error(A, E, consts)
+    return err, k, size, degenerate
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _generated_cell(points, conn, m, consts, D, col, X, b, A, E):
+    """_cell_coefficients for a type whose columns and products are generated (_kernel_gen: the linear types;
+    the same numbers as the table loops, bit for bit)."""
+    n = D.shape[0]
+    k = _scaled_differences(points, conn, m, n, D)
+    if k == _NO_EXTENT:
+        for i in range(b.shape[0]):
+            b[i] = 0.0
+        return 0.0, 0, 0.0, True
+    gid = int(consts[6])
+    _generated_columns(gid, D, col, A, E)
+    _generated_products(gid, col, X, b)
+    err, size, degenerate = _size_and_error(A, E, consts)
+    return err, k, size, degenerate
 
 
 @njit(cache=True, nogil=True)
 def _block_coefficients(points, conn, ids, start, stop, cptr, cidx_, cval, col_a, col_b, col_w, col_off, xp, xi,
                         xj, xw, dp, di, dj, dw, consts, D, P, eP, col, X, b, A, E, o_b, o_err, o_k, o_size, o_deg):
-    """_cell_coefficients of the cells ids[start:stop] into row t - start of the outputs. Two loops, one per
-    path: a loop whose body holds both (even the table path as a call) ran the generated path a third slower
-    (measured on hexahedra: 250 against 170 ns per cell)."""
+    """The coefficients of the cells ids[start:stop] into row t - start of the outputs. Two loops, one per
+    path (_generated_cell, _cell_coefficients): a loop whose body holds both (even the table path as a call)
+    ran the generated path a third slower (measured on hexahedra: 250 against 170 ns per cell)."""
     nb = b.shape[0]
     if _has_generated_columns(int(consts[6])):
         for t in range(start, stop):
-            err, k, size, deg = _cell_coefficients(points, conn, ids[t], cptr, cidx_, cval, col_a, col_b, col_w,
-                                                   col_off, xp, xi, xj, xw, dp, di, dj, dw, consts, D, P, eP, col, X,
-                                                   b, A, E, True)
+            err, k, size, deg = _generated_cell(points, conn, ids[t], consts, D, col, X, b, A, E)
             j = t - start
             for i in range(nb):
                 o_b[j, i] = b[i]
@@ -258,7 +273,7 @@ def _block_coefficients(points, conn, ids, start, stop, cptr, cidx_, cval, col_a
         for t in range(start, stop):
             err, k, size, deg = _cell_coefficients(points, conn, ids[t], cptr, cidx_, cval, col_a, col_b, col_w,
                                                    col_off, xp, xi, xj, xw, dp, di, dj, dw, consts, D, P, eP, col, X,
-                                                   b, A, E, False)
+                                                   b, A, E)
             j = t - start
             for i in range(nb):
                 o_b[j, i] = b[i]

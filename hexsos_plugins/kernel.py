@@ -288,6 +288,12 @@ def generated_source() -> str:
     for gid, name in enumerate(GENERATED, start=1):
         out += [f"    if gid == {gid}:", f"        _products_{name}(col, X, b)", "        return True"]
     out += ["    return False", ""]
+    out += ["", '@njit(cache=True, nogil=True, inline="always")', "def products_only(gid, col, X, b):",
+            '    """products for the types without generated columns (the others take both, in their own loop)."""']
+    for gid, t in enumerate(tabs, start=1):
+        if not _nodes_only(t):
+            out += [f"    if gid == {gid}:", f"        _products_{t.name}(col, X, b)", "        return True"]
+    out += ["    return False", ""]
     return "\n".join(out)
 
 
