@@ -212,6 +212,17 @@ def _size_and_error(A, E, consts):
 
 
 @njit(cache=True, nogil=True, inline="always")
+def _cell_start(points, conn, m, D, b):
+    """The scaled node offsets D of cell m (_scaled_differences) and its exponent k; for a cell whose nodes all
+    coincide (k = _NO_EXTENT) also its coefficients b, all 0."""
+    k = _scaled_differences(points, conn, m, D.shape[0], D)
+    if k == _NO_EXTENT:
+        for i in range(b.shape[0]):
+            b[i] = 0.0
+    return k
+
+
+@njit(cache=True, nogil=True, inline="always")
 def _cell_coefficients(points, conn, m, cptr, cidx_, cval, col_a, col_b, col_w, col_off, xp, xi, xj, xw, dp, di, dj,
                        dw, consts, D, P, eP, col, X, b, A, E):
     """det J's Bernstein coefficients b of cell m, by Bernstein products of the Jacobian's columns.
@@ -224,11 +235,8 @@ def _cell_coefficients(points, conn, m, cptr, cidx_, cval, col_a, col_b, col_w, 
     loops over the tables, the products by generated code where the type has it (_kernel_gen), else loops
     (sorted by output coefficient, xp / dp their row pointers); _generated_cell is the same for the types
     whose columns are generated too."""
-    n = D.shape[0]
-    k = _scaled_differences(points, conn, m, n, D)
+    k = _cell_start(points, conn, m, D, b)
     if k == _NO_EXTENT:
-        for i in range(b.shape[0]):
-            b[i] = 0.0
         return 0.0, 0, 0.0, True
     _table_columns(D, cptr, cidx_, cval, col_a, col_b, col_w, col_off, P, eP, col, A, E)
     # X = column 1 x column 2 (each component a difference of two Bernstein products), then b = column 0 . X
@@ -242,11 +250,8 @@ def _cell_coefficients(points, conn, m, cptr, cidx_, cval, col_a, col_b, col_w, 
 def _generated_cell(points, conn, m, consts, D, col, X, b, A, E):
     """_cell_coefficients for a type whose columns and products are generated (_kernel_gen: the linear types;
     the same numbers as the table loops, bit for bit)."""
-    n = D.shape[0]
-    k = _scaled_differences(points, conn, m, n, D)
+    k = _cell_start(points, conn, m, D, b)
     if k == _NO_EXTENT:
-        for i in range(b.shape[0]):
-            b[i] = 0.0
         return 0.0, 0, 0.0, True
     gid = int(consts[6])
     _generated_columns(gid, D, col, A, E)
