@@ -4,6 +4,12 @@
 # code of pyramid: 684003547b7d0a67eaadf408fa382c570bed1bdaec635a604de8f0dd490f37ad
 # code of wedge: 36467e133404e437253748958b59021e64f58b89baa85ed56ca333028ef334c1
 # code of hexahedron: 5c99aafc03220158b14ee71508b8fe8743cf68fcea6e021d99a0db1a03b3eea7
+# scaled Jacobian of tetra: 7750ac038b92349485590210c2891fc52c589cb7c42fa9fba7f2d208dbe8f0c2
+# scaled Jacobian of pyramid: 2985c5525fa271ed84dcc39fae767f9a7e3fa9f0e4283991f19728082efb2fc7
+# scaled Jacobian of wedge: 38f12f99b20436a623f2f0128717f9544202eb9108e370907a055de2bbb97b93
+# scaled Jacobian of hexahedron: 048d7700f43d68b612fba4ed7901f1bcbb934463203d4f28ca5896dc78adf071
+
+import math
 
 from numba import njit
 
@@ -1277,5 +1283,774 @@ def products_only(gid, col, X, b):
     """products for the types without generated columns (the others take both, in their own loop)."""
     if gid == 2:
         _products_tetra10(col, X, b)
+        return True
+    return False
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _sj_tetra(points, conn, m):
+    """tetra: Verdict's scaled Jacobian of cell m (see _kernel_src.scaled_jacobian_chunk)."""
+    i0 = conn[m, 0]
+    i1 = conn[m, 1]
+    i2 = conn[m, 2]
+    i3 = conn[m, 3]
+    x0_0 = points[i0, 0]
+    x0_1 = points[i0, 1]
+    x0_2 = points[i0, 2]
+    x1_0 = points[i1, 0]
+    x1_1 = points[i1, 1]
+    x1_2 = points[i1, 2]
+    x2_0 = points[i2, 0]
+    x2_1 = points[i2, 1]
+    x2_2 = points[i2, 2]
+    x3_0 = points[i3, 0]
+    x3_1 = points[i3, 1]
+    x3_2 = points[i3, 2]
+    v0_0 = 0.0
+    v0_0 += -1.0 * x0_0
+    v0_0 += 1.0 * x1_0
+    v0_1 = 0.0
+    v0_1 += -1.0 * x0_1
+    v0_1 += 1.0 * x1_1
+    v0_2 = 0.0
+    v0_2 += -1.0 * x0_2
+    v0_2 += 1.0 * x1_2
+    n0 = math.sqrt(v0_0 * v0_0 + v0_1 * v0_1 + v0_2 * v0_2)
+    v1_0 = 0.0
+    v1_0 += -1.0 * x0_0
+    v1_0 += 1.0 * x2_0
+    v1_1 = 0.0
+    v1_1 += -1.0 * x0_1
+    v1_1 += 1.0 * x2_1
+    v1_2 = 0.0
+    v1_2 += -1.0 * x0_2
+    v1_2 += 1.0 * x2_2
+    n1 = math.sqrt(v1_0 * v1_0 + v1_1 * v1_1 + v1_2 * v1_2)
+    v2_0 = 0.0
+    v2_0 += -1.0 * x0_0
+    v2_0 += 1.0 * x3_0
+    v2_1 = 0.0
+    v2_1 += -1.0 * x0_1
+    v2_1 += 1.0 * x3_1
+    v2_2 = 0.0
+    v2_2 += -1.0 * x0_2
+    v2_2 += 1.0 * x3_2
+    n2 = math.sqrt(v2_0 * v2_0 + v2_1 * v2_1 + v2_2 * v2_2)
+    v3_0 = 0.0
+    v3_0 += -1.0 * x1_0
+    v3_0 += 1.0 * x2_0
+    v3_1 = 0.0
+    v3_1 += -1.0 * x1_1
+    v3_1 += 1.0 * x2_1
+    v3_2 = 0.0
+    v3_2 += -1.0 * x1_2
+    v3_2 += 1.0 * x2_2
+    n3 = math.sqrt(v3_0 * v3_0 + v3_1 * v3_1 + v3_2 * v3_2)
+    v4_0 = 0.0
+    v4_0 += -1.0 * x1_0
+    v4_0 += 1.0 * x3_0
+    v4_1 = 0.0
+    v4_1 += -1.0 * x1_1
+    v4_1 += 1.0 * x3_1
+    v4_2 = 0.0
+    v4_2 += -1.0 * x1_2
+    v4_2 += 1.0 * x3_2
+    n4 = math.sqrt(v4_0 * v4_0 + v4_1 * v4_1 + v4_2 * v4_2)
+    v5_0 = 0.0
+    v5_0 += -1.0 * x2_0
+    v5_0 += 1.0 * x3_0
+    v5_1 = 0.0
+    v5_1 += -1.0 * x2_1
+    v5_1 += 1.0 * x3_1
+    v5_2 = 0.0
+    v5_2 += -1.0 * x2_2
+    v5_2 += 1.0 * x3_2
+    n5 = math.sqrt(v5_0 * v5_0 + v5_1 * v5_1 + v5_2 * v5_2)
+    best = math.inf
+    det = (v0_0 * (v1_1 * v2_2 - v1_2 * v2_1) - v1_0 * (v0_1 * v2_2 - v0_2 * v2_1) + v2_0 * (v0_1 * v1_2 - v0_2 * v1_1)) * 1.0
+    lengths = n0 * n1 * n2
+    gdet = det
+    gbig = lengths
+    det = (v3_0 * (v0_1 * v4_2 - v0_2 * v4_1) - v0_0 * (v3_1 * v4_2 - v3_2 * v4_1) + v4_0 * (v3_1 * v0_2 - v3_2 * v0_1)) * -1.0
+    lengths = n3 * n0 * n4
+    if lengths > gbig:
+        gbig = lengths
+    det = (v1_0 * (v3_1 * v5_2 - v3_2 * v5_1) - v3_0 * (v1_1 * v5_2 - v1_2 * v5_1) + v5_0 * (v1_1 * v3_2 - v1_2 * v3_1)) * 1.0
+    lengths = n1 * n3 * n5
+    if lengths > gbig:
+        gbig = lengths
+    det = (v2_0 * (v5_1 * v4_2 - v5_2 * v4_1) - v5_0 * (v2_1 * v4_2 - v2_2 * v4_1) + v4_0 * (v2_1 * v5_2 - v2_2 * v5_1)) * -1.0
+    lengths = n2 * n5 * n4
+    if lengths > gbig:
+        gbig = lengths
+    val = 1.4142135623730951 * gdet / gbig if gbig > 2.2250738585072014e-308 else 0.0
+    if val < best:
+        best = val
+    return best
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _sj_pyramid(points, conn, m):
+    """pyramid: Verdict's scaled Jacobian of cell m (see _kernel_src.scaled_jacobian_chunk)."""
+    i0 = conn[m, 0]
+    i1 = conn[m, 1]
+    i2 = conn[m, 2]
+    i3 = conn[m, 3]
+    i4 = conn[m, 4]
+    x0_0 = points[i0, 0]
+    x0_1 = points[i0, 1]
+    x0_2 = points[i0, 2]
+    x1_0 = points[i1, 0]
+    x1_1 = points[i1, 1]
+    x1_2 = points[i1, 2]
+    x2_0 = points[i2, 0]
+    x2_1 = points[i2, 1]
+    x2_2 = points[i2, 2]
+    x3_0 = points[i3, 0]
+    x3_1 = points[i3, 1]
+    x3_2 = points[i3, 2]
+    x4_0 = points[i4, 0]
+    x4_1 = points[i4, 1]
+    x4_2 = points[i4, 2]
+    v0_0 = 0.0
+    v0_0 += -1.0 * x0_0
+    v0_0 += 1.0 * x1_0
+    v0_1 = 0.0
+    v0_1 += -1.0 * x0_1
+    v0_1 += 1.0 * x1_1
+    v0_2 = 0.0
+    v0_2 += -1.0 * x0_2
+    v0_2 += 1.0 * x1_2
+    n0 = math.sqrt(v0_0 * v0_0 + v0_1 * v0_1 + v0_2 * v0_2)
+    v1_0 = 0.0
+    v1_0 += -1.0 * x0_0
+    v1_0 += 1.0 * x3_0
+    v1_1 = 0.0
+    v1_1 += -1.0 * x0_1
+    v1_1 += 1.0 * x3_1
+    v1_2 = 0.0
+    v1_2 += -1.0 * x0_2
+    v1_2 += 1.0 * x3_2
+    n1 = math.sqrt(v1_0 * v1_0 + v1_1 * v1_1 + v1_2 * v1_2)
+    v2_0 = 0.0
+    v2_0 += -1.0 * x0_0
+    v2_0 += 1.0 * x4_0
+    v2_1 = 0.0
+    v2_1 += -1.0 * x0_1
+    v2_1 += 1.0 * x4_1
+    v2_2 = 0.0
+    v2_2 += -1.0 * x0_2
+    v2_2 += 1.0 * x4_2
+    n2 = math.sqrt(v2_0 * v2_0 + v2_1 * v2_1 + v2_2 * v2_2)
+    v3_0 = 0.0
+    v3_0 += -1.0 * x1_0
+    v3_0 += 1.0 * x3_0
+    v3_1 = 0.0
+    v3_1 += -1.0 * x1_1
+    v3_1 += 1.0 * x3_1
+    v3_2 = 0.0
+    v3_2 += -1.0 * x1_2
+    v3_2 += 1.0 * x3_2
+    n3 = math.sqrt(v3_0 * v3_0 + v3_1 * v3_1 + v3_2 * v3_2)
+    v4_0 = 0.0
+    v4_0 += -1.0 * x1_0
+    v4_0 += 1.0 * x4_0
+    v4_1 = 0.0
+    v4_1 += -1.0 * x1_1
+    v4_1 += 1.0 * x4_1
+    v4_2 = 0.0
+    v4_2 += -1.0 * x1_2
+    v4_2 += 1.0 * x4_2
+    n4 = math.sqrt(v4_0 * v4_0 + v4_1 * v4_1 + v4_2 * v4_2)
+    v5_0 = 0.0
+    v5_0 += -1.0 * x3_0
+    v5_0 += 1.0 * x4_0
+    v5_1 = 0.0
+    v5_1 += -1.0 * x3_1
+    v5_1 += 1.0 * x4_1
+    v5_2 = 0.0
+    v5_2 += -1.0 * x3_2
+    v5_2 += 1.0 * x4_2
+    n5 = math.sqrt(v5_0 * v5_0 + v5_1 * v5_1 + v5_2 * v5_2)
+    v6_0 = 0.0
+    v6_0 += -1.0 * x1_0
+    v6_0 += 1.0 * x2_0
+    v6_1 = 0.0
+    v6_1 += -1.0 * x1_1
+    v6_1 += 1.0 * x2_1
+    v6_2 = 0.0
+    v6_2 += -1.0 * x1_2
+    v6_2 += 1.0 * x2_2
+    n6 = math.sqrt(v6_0 * v6_0 + v6_1 * v6_1 + v6_2 * v6_2)
+    v7_0 = 0.0
+    v7_0 += 1.0 * x0_0
+    v7_0 += -1.0 * x2_0
+    v7_1 = 0.0
+    v7_1 += 1.0 * x0_1
+    v7_1 += -1.0 * x2_1
+    v7_2 = 0.0
+    v7_2 += 1.0 * x0_2
+    v7_2 += -1.0 * x2_2
+    n7 = math.sqrt(v7_0 * v7_0 + v7_1 * v7_1 + v7_2 * v7_2)
+    v8_0 = 0.0
+    v8_0 += -1.0 * x2_0
+    v8_0 += 1.0 * x4_0
+    v8_1 = 0.0
+    v8_1 += -1.0 * x2_1
+    v8_1 += 1.0 * x4_1
+    v8_2 = 0.0
+    v8_2 += -1.0 * x2_2
+    v8_2 += 1.0 * x4_2
+    n8 = math.sqrt(v8_0 * v8_0 + v8_1 * v8_1 + v8_2 * v8_2)
+    v9_0 = 0.0
+    v9_0 += -1.0 * x2_0
+    v9_0 += 1.0 * x3_0
+    v9_1 = 0.0
+    v9_1 += -1.0 * x2_1
+    v9_1 += 1.0 * x3_1
+    v9_2 = 0.0
+    v9_2 += -1.0 * x2_2
+    v9_2 += 1.0 * x3_2
+    n9 = math.sqrt(v9_0 * v9_0 + v9_1 * v9_1 + v9_2 * v9_2)
+    best = math.inf
+    det = (v0_0 * (v1_1 * v2_2 - v1_2 * v2_1) - v1_0 * (v0_1 * v2_2 - v0_2 * v2_1) + v2_0 * (v0_1 * v1_2 - v0_2 * v1_1)) * 1.0
+    lengths = n0 * n1 * n2
+    gdet = det
+    gbig = lengths
+    det = (v3_0 * (v0_1 * v4_2 - v0_2 * v4_1) - v0_0 * (v3_1 * v4_2 - v3_2 * v4_1) + v4_0 * (v3_1 * v0_2 - v3_2 * v0_1)) * -1.0
+    lengths = n3 * n0 * n4
+    if lengths > gbig:
+        gbig = lengths
+    det = (v1_0 * (v3_1 * v5_2 - v3_2 * v5_1) - v3_0 * (v1_1 * v5_2 - v1_2 * v5_1) + v5_0 * (v1_1 * v3_2 - v1_2 * v3_1)) * 1.0
+    lengths = n1 * n3 * n5
+    if lengths > gbig:
+        gbig = lengths
+    det = (v4_0 * (v2_1 * v5_2 - v2_2 * v5_1) - v2_0 * (v4_1 * v5_2 - v4_2 * v5_1) + v5_0 * (v4_1 * v2_2 - v4_2 * v2_1)) * -1.0
+    lengths = n4 * n2 * n5
+    if lengths > gbig:
+        gbig = lengths
+    val = 2.0 * gdet / gbig if gbig > 2.2250738585072014e-308 else 0.0
+    if val < best:
+        best = val
+    det = (v6_0 * (v0_1 * v4_2 - v0_2 * v4_1) - v0_0 * (v6_1 * v4_2 - v6_2 * v4_1) + v4_0 * (v6_1 * v0_2 - v6_2 * v0_1)) * -1.0
+    lengths = n6 * n0 * n4
+    gdet = det
+    gbig = lengths
+    det = (v7_0 * (v6_1 * v8_2 - v6_2 * v8_1) - v6_0 * (v7_1 * v8_2 - v7_2 * v8_1) + v8_0 * (v7_1 * v6_2 - v7_2 * v6_1)) * -1.0
+    lengths = n7 * n6 * n8
+    if lengths > gbig:
+        gbig = lengths
+    det = (v0_0 * (v7_1 * v2_2 - v7_2 * v2_1) - v7_0 * (v0_1 * v2_2 - v0_2 * v2_1) + v2_0 * (v0_1 * v7_2 - v0_2 * v7_1)) * -1.0
+    lengths = n0 * n7 * n2
+    if lengths > gbig:
+        gbig = lengths
+    det = (v8_0 * (v4_1 * v2_2 - v4_2 * v2_1) - v4_0 * (v8_1 * v2_2 - v8_2 * v2_1) + v2_0 * (v8_1 * v4_2 - v8_2 * v4_1)) * -1.0
+    lengths = n8 * n4 * n2
+    if lengths > gbig:
+        gbig = lengths
+    val = 2.0 * gdet / gbig if gbig > 2.2250738585072014e-308 else 0.0
+    if val < best:
+        best = val
+    det = (v9_0 * (v6_1 * v8_2 - v6_2 * v8_1) - v6_0 * (v9_1 * v8_2 - v9_2 * v8_1) + v8_0 * (v9_1 * v6_2 - v9_2 * v6_1)) * -1.0
+    lengths = n9 * n6 * n8
+    gdet = det
+    gbig = lengths
+    det = (v3_0 * (v9_1 * v5_2 - v9_2 * v5_1) - v9_0 * (v3_1 * v5_2 - v3_2 * v5_1) + v5_0 * (v3_1 * v9_2 - v3_2 * v9_1)) * 1.0
+    lengths = n3 * n9 * n5
+    if lengths > gbig:
+        gbig = lengths
+    det = (v6_0 * (v3_1 * v4_2 - v3_2 * v4_1) - v3_0 * (v6_1 * v4_2 - v6_2 * v4_1) + v4_0 * (v6_1 * v3_2 - v6_2 * v3_1)) * 1.0
+    lengths = n6 * n3 * n4
+    if lengths > gbig:
+        gbig = lengths
+    det = (v5_0 * (v8_1 * v4_2 - v8_2 * v4_1) - v8_0 * (v5_1 * v4_2 - v5_2 * v4_1) + v4_0 * (v5_1 * v8_2 - v5_2 * v8_1)) * -1.0
+    lengths = n5 * n8 * n4
+    if lengths > gbig:
+        gbig = lengths
+    val = 2.0 * gdet / gbig if gbig > 2.2250738585072014e-308 else 0.0
+    if val < best:
+        best = val
+    det = (v1_0 * (v9_1 * v5_2 - v9_2 * v5_1) - v9_0 * (v1_1 * v5_2 - v1_2 * v5_1) + v5_0 * (v1_1 * v9_2 - v1_2 * v9_1)) * 1.0
+    lengths = n1 * n9 * n5
+    gdet = det
+    gbig = lengths
+    det = (v7_0 * (v1_1 * v2_2 - v1_2 * v2_1) - v1_0 * (v7_1 * v2_2 - v7_2 * v2_1) + v2_0 * (v7_1 * v1_2 - v7_2 * v1_1)) * -1.0
+    lengths = n7 * n1 * n2
+    if lengths > gbig:
+        gbig = lengths
+    det = (v9_0 * (v7_1 * v8_2 - v7_2 * v8_1) - v7_0 * (v9_1 * v8_2 - v9_2 * v8_1) + v8_0 * (v9_1 * v7_2 - v9_2 * v7_1)) * 1.0
+    lengths = n9 * n7 * n8
+    if lengths > gbig:
+        gbig = lengths
+    det = (v2_0 * (v5_1 * v8_2 - v5_2 * v8_1) - v5_0 * (v2_1 * v8_2 - v2_2 * v8_1) + v8_0 * (v2_1 * v5_2 - v2_2 * v5_1)) * -1.0
+    lengths = n2 * n5 * n8
+    if lengths > gbig:
+        gbig = lengths
+    val = 2.0 * gdet / gbig if gbig > 2.2250738585072014e-308 else 0.0
+    if val < best:
+        best = val
+    if best > 1.0:
+        best = 2.0 - best
+    return best
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _sj_wedge(points, conn, m):
+    """wedge: Verdict's scaled Jacobian of cell m (see _kernel_src.scaled_jacobian_chunk)."""
+    i0 = conn[m, 0]
+    i1 = conn[m, 1]
+    i2 = conn[m, 2]
+    i3 = conn[m, 3]
+    i4 = conn[m, 4]
+    i5 = conn[m, 5]
+    x0_0 = points[i0, 0]
+    x0_1 = points[i0, 1]
+    x0_2 = points[i0, 2]
+    x1_0 = points[i1, 0]
+    x1_1 = points[i1, 1]
+    x1_2 = points[i1, 2]
+    x2_0 = points[i2, 0]
+    x2_1 = points[i2, 1]
+    x2_2 = points[i2, 2]
+    x3_0 = points[i3, 0]
+    x3_1 = points[i3, 1]
+    x3_2 = points[i3, 2]
+    x4_0 = points[i4, 0]
+    x4_1 = points[i4, 1]
+    x4_2 = points[i4, 2]
+    x5_0 = points[i5, 0]
+    x5_1 = points[i5, 1]
+    x5_2 = points[i5, 2]
+    v0_0 = 0.0
+    v0_0 += -1.0 * x0_0
+    v0_0 += 1.0 * x1_0
+    v0_1 = 0.0
+    v0_1 += -1.0 * x0_1
+    v0_1 += 1.0 * x1_1
+    v0_2 = 0.0
+    v0_2 += -1.0 * x0_2
+    v0_2 += 1.0 * x1_2
+    n0 = math.sqrt(v0_0 * v0_0 + v0_1 * v0_1 + v0_2 * v0_2)
+    v1_0 = 0.0
+    v1_0 += -1.0 * x0_0
+    v1_0 += 1.0 * x2_0
+    v1_1 = 0.0
+    v1_1 += -1.0 * x0_1
+    v1_1 += 1.0 * x2_1
+    v1_2 = 0.0
+    v1_2 += -1.0 * x0_2
+    v1_2 += 1.0 * x2_2
+    n1 = math.sqrt(v1_0 * v1_0 + v1_1 * v1_1 + v1_2 * v1_2)
+    v2_0 = 0.0
+    v2_0 += -1.0 * x0_0
+    v2_0 += 1.0 * x3_0
+    v2_1 = 0.0
+    v2_1 += -1.0 * x0_1
+    v2_1 += 1.0 * x3_1
+    v2_2 = 0.0
+    v2_2 += -1.0 * x0_2
+    v2_2 += 1.0 * x3_2
+    n2 = math.sqrt(v2_0 * v2_0 + v2_1 * v2_1 + v2_2 * v2_2)
+    v3_0 = 0.0
+    v3_0 += -1.0 * x1_0
+    v3_0 += 1.0 * x2_0
+    v3_1 = 0.0
+    v3_1 += -1.0 * x1_1
+    v3_1 += 1.0 * x2_1
+    v3_2 = 0.0
+    v3_2 += -1.0 * x1_2
+    v3_2 += 1.0 * x2_2
+    n3 = math.sqrt(v3_0 * v3_0 + v3_1 * v3_1 + v3_2 * v3_2)
+    v4_0 = 0.0
+    v4_0 += -1.0 * x1_0
+    v4_0 += 1.0 * x4_0
+    v4_1 = 0.0
+    v4_1 += -1.0 * x1_1
+    v4_1 += 1.0 * x4_1
+    v4_2 = 0.0
+    v4_2 += -1.0 * x1_2
+    v4_2 += 1.0 * x4_2
+    n4 = math.sqrt(v4_0 * v4_0 + v4_1 * v4_1 + v4_2 * v4_2)
+    v5_0 = 0.0
+    v5_0 += -1.0 * x2_0
+    v5_0 += 1.0 * x5_0
+    v5_1 = 0.0
+    v5_1 += -1.0 * x2_1
+    v5_1 += 1.0 * x5_1
+    v5_2 = 0.0
+    v5_2 += -1.0 * x2_2
+    v5_2 += 1.0 * x5_2
+    n5 = math.sqrt(v5_0 * v5_0 + v5_1 * v5_1 + v5_2 * v5_2)
+    v6_0 = 0.0
+    v6_0 += -1.0 * x3_0
+    v6_0 += 1.0 * x5_0
+    v6_1 = 0.0
+    v6_1 += -1.0 * x3_1
+    v6_1 += 1.0 * x5_1
+    v6_2 = 0.0
+    v6_2 += -1.0 * x3_2
+    v6_2 += 1.0 * x5_2
+    n6 = math.sqrt(v6_0 * v6_0 + v6_1 * v6_1 + v6_2 * v6_2)
+    v7_0 = 0.0
+    v7_0 += -1.0 * x3_0
+    v7_0 += 1.0 * x4_0
+    v7_1 = 0.0
+    v7_1 += -1.0 * x3_1
+    v7_1 += 1.0 * x4_1
+    v7_2 = 0.0
+    v7_2 += -1.0 * x3_2
+    v7_2 += 1.0 * x4_2
+    n7 = math.sqrt(v7_0 * v7_0 + v7_1 * v7_1 + v7_2 * v7_2)
+    v8_0 = 0.0
+    v8_0 += -1.0 * x4_0
+    v8_0 += 1.0 * x5_0
+    v8_1 = 0.0
+    v8_1 += -1.0 * x4_1
+    v8_1 += 1.0 * x5_1
+    v8_2 = 0.0
+    v8_2 += -1.0 * x4_2
+    v8_2 += 1.0 * x5_2
+    n8 = math.sqrt(v8_0 * v8_0 + v8_1 * v8_1 + v8_2 * v8_2)
+    best = math.inf
+    det = (v0_0 * (v1_1 * v2_2 - v1_2 * v2_1) - v1_0 * (v0_1 * v2_2 - v0_2 * v2_1) + v2_0 * (v0_1 * v1_2 - v0_2 * v1_1)) * 1.0
+    lengths = n0 * n1 * n2
+    val = 1.1547005383792517 * det / lengths if lengths > 2.2250738585072014e-308 else 0.0
+    if val < best:
+        best = val
+    det = (v3_0 * (v0_1 * v4_2 - v0_2 * v4_1) - v0_0 * (v3_1 * v4_2 - v3_2 * v4_1) + v4_0 * (v3_1 * v0_2 - v3_2 * v0_1)) * -1.0
+    lengths = n3 * n0 * n4
+    val = 1.1547005383792517 * det / lengths if lengths > 2.2250738585072014e-308 else 0.0
+    if val < best:
+        best = val
+    det = (v1_0 * (v3_1 * v5_2 - v3_2 * v5_1) - v3_0 * (v1_1 * v5_2 - v1_2 * v5_1) + v5_0 * (v1_1 * v3_2 - v1_2 * v3_1)) * 1.0
+    lengths = n1 * n3 * n5
+    val = 1.1547005383792517 * det / lengths if lengths > 2.2250738585072014e-308 else 0.0
+    if val < best:
+        best = val
+    det = (v6_0 * (v7_1 * v2_2 - v7_2 * v2_1) - v7_0 * (v6_1 * v2_2 - v6_2 * v2_1) + v2_0 * (v6_1 * v7_2 - v6_2 * v7_1)) * -1.0
+    lengths = n6 * n7 * n2
+    val = 1.1547005383792517 * det / lengths if lengths > 2.2250738585072014e-308 else 0.0
+    if val < best:
+        best = val
+    det = (v7_0 * (v8_1 * v4_2 - v8_2 * v4_1) - v8_0 * (v7_1 * v4_2 - v7_2 * v4_1) + v4_0 * (v7_1 * v8_2 - v7_2 * v8_1)) * 1.0
+    lengths = n7 * n8 * n4
+    val = 1.1547005383792517 * det / lengths if lengths > 2.2250738585072014e-308 else 0.0
+    if val < best:
+        best = val
+    det = (v8_0 * (v6_1 * v5_2 - v6_2 * v5_1) - v6_0 * (v8_1 * v5_2 - v8_2 * v5_1) + v5_0 * (v8_1 * v6_2 - v8_2 * v6_1)) * -1.0
+    lengths = n8 * n6 * n5
+    val = 1.1547005383792517 * det / lengths if lengths > 2.2250738585072014e-308 else 0.0
+    if val < best:
+        best = val
+    return best
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _sj_hexahedron(points, conn, m):
+    """hexahedron: Verdict's scaled Jacobian of cell m (see _kernel_src.scaled_jacobian_chunk)."""
+    i0 = conn[m, 0]
+    i1 = conn[m, 1]
+    i2 = conn[m, 2]
+    i3 = conn[m, 3]
+    i4 = conn[m, 4]
+    i5 = conn[m, 5]
+    i6 = conn[m, 6]
+    i7 = conn[m, 7]
+    x0_0 = points[i0, 0]
+    x0_1 = points[i0, 1]
+    x0_2 = points[i0, 2]
+    x1_0 = points[i1, 0]
+    x1_1 = points[i1, 1]
+    x1_2 = points[i1, 2]
+    x2_0 = points[i2, 0]
+    x2_1 = points[i2, 1]
+    x2_2 = points[i2, 2]
+    x3_0 = points[i3, 0]
+    x3_1 = points[i3, 1]
+    x3_2 = points[i3, 2]
+    x4_0 = points[i4, 0]
+    x4_1 = points[i4, 1]
+    x4_2 = points[i4, 2]
+    x5_0 = points[i5, 0]
+    x5_1 = points[i5, 1]
+    x5_2 = points[i5, 2]
+    x6_0 = points[i6, 0]
+    x6_1 = points[i6, 1]
+    x6_2 = points[i6, 2]
+    x7_0 = points[i7, 0]
+    x7_1 = points[i7, 1]
+    x7_2 = points[i7, 2]
+    v0_0 = 0.0
+    v0_0 += -1.0 * x0_0
+    v0_0 += 1.0 * x1_0
+    v0_1 = 0.0
+    v0_1 += -1.0 * x0_1
+    v0_1 += 1.0 * x1_1
+    v0_2 = 0.0
+    v0_2 += -1.0 * x0_2
+    v0_2 += 1.0 * x1_2
+    n0 = math.sqrt(v0_0 * v0_0 + v0_1 * v0_1 + v0_2 * v0_2)
+    v1_0 = 0.0
+    v1_0 += -1.0 * x0_0
+    v1_0 += 1.0 * x3_0
+    v1_1 = 0.0
+    v1_1 += -1.0 * x0_1
+    v1_1 += 1.0 * x3_1
+    v1_2 = 0.0
+    v1_2 += -1.0 * x0_2
+    v1_2 += 1.0 * x3_2
+    n1 = math.sqrt(v1_0 * v1_0 + v1_1 * v1_1 + v1_2 * v1_2)
+    v2_0 = 0.0
+    v2_0 += -1.0 * x0_0
+    v2_0 += 1.0 * x4_0
+    v2_1 = 0.0
+    v2_1 += -1.0 * x0_1
+    v2_1 += 1.0 * x4_1
+    v2_2 = 0.0
+    v2_2 += -1.0 * x0_2
+    v2_2 += 1.0 * x4_2
+    n2 = math.sqrt(v2_0 * v2_0 + v2_1 * v2_1 + v2_2 * v2_2)
+    v3_0 = 0.0
+    v3_0 += -1.0 * x1_0
+    v3_0 += 1.0 * x2_0
+    v3_1 = 0.0
+    v3_1 += -1.0 * x1_1
+    v3_1 += 1.0 * x2_1
+    v3_2 = 0.0
+    v3_2 += -1.0 * x1_2
+    v3_2 += 1.0 * x2_2
+    n3 = math.sqrt(v3_0 * v3_0 + v3_1 * v3_1 + v3_2 * v3_2)
+    v4_0 = 0.0
+    v4_0 += -1.0 * x1_0
+    v4_0 += 1.0 * x5_0
+    v4_1 = 0.0
+    v4_1 += -1.0 * x1_1
+    v4_1 += 1.0 * x5_1
+    v4_2 = 0.0
+    v4_2 += -1.0 * x1_2
+    v4_2 += 1.0 * x5_2
+    n4 = math.sqrt(v4_0 * v4_0 + v4_1 * v4_1 + v4_2 * v4_2)
+    v5_0 = 0.0
+    v5_0 += -1.0 * x2_0
+    v5_0 += 1.0 * x3_0
+    v5_1 = 0.0
+    v5_1 += -1.0 * x2_1
+    v5_1 += 1.0 * x3_1
+    v5_2 = 0.0
+    v5_2 += -1.0 * x2_2
+    v5_2 += 1.0 * x3_2
+    n5 = math.sqrt(v5_0 * v5_0 + v5_1 * v5_1 + v5_2 * v5_2)
+    v6_0 = 0.0
+    v6_0 += -1.0 * x2_0
+    v6_0 += 1.0 * x6_0
+    v6_1 = 0.0
+    v6_1 += -1.0 * x2_1
+    v6_1 += 1.0 * x6_1
+    v6_2 = 0.0
+    v6_2 += -1.0 * x2_2
+    v6_2 += 1.0 * x6_2
+    n6 = math.sqrt(v6_0 * v6_0 + v6_1 * v6_1 + v6_2 * v6_2)
+    v7_0 = 0.0
+    v7_0 += -1.0 * x3_0
+    v7_0 += 1.0 * x7_0
+    v7_1 = 0.0
+    v7_1 += -1.0 * x3_1
+    v7_1 += 1.0 * x7_1
+    v7_2 = 0.0
+    v7_2 += -1.0 * x3_2
+    v7_2 += 1.0 * x7_2
+    n7 = math.sqrt(v7_0 * v7_0 + v7_1 * v7_1 + v7_2 * v7_2)
+    v8_0 = 0.0
+    v8_0 += -1.0 * x4_0
+    v8_0 += 1.0 * x7_0
+    v8_1 = 0.0
+    v8_1 += -1.0 * x4_1
+    v8_1 += 1.0 * x7_1
+    v8_2 = 0.0
+    v8_2 += -1.0 * x4_2
+    v8_2 += 1.0 * x7_2
+    n8 = math.sqrt(v8_0 * v8_0 + v8_1 * v8_1 + v8_2 * v8_2)
+    v9_0 = 0.0
+    v9_0 += -1.0 * x4_0
+    v9_0 += 1.0 * x5_0
+    v9_1 = 0.0
+    v9_1 += -1.0 * x4_1
+    v9_1 += 1.0 * x5_1
+    v9_2 = 0.0
+    v9_2 += -1.0 * x4_2
+    v9_2 += 1.0 * x5_2
+    n9 = math.sqrt(v9_0 * v9_0 + v9_1 * v9_1 + v9_2 * v9_2)
+    v10_0 = 0.0
+    v10_0 += -1.0 * x5_0
+    v10_0 += 1.0 * x6_0
+    v10_1 = 0.0
+    v10_1 += -1.0 * x5_1
+    v10_1 += 1.0 * x6_1
+    v10_2 = 0.0
+    v10_2 += -1.0 * x5_2
+    v10_2 += 1.0 * x6_2
+    n10 = math.sqrt(v10_0 * v10_0 + v10_1 * v10_1 + v10_2 * v10_2)
+    v11_0 = 0.0
+    v11_0 += -1.0 * x6_0
+    v11_0 += 1.0 * x7_0
+    v11_1 = 0.0
+    v11_1 += -1.0 * x6_1
+    v11_1 += 1.0 * x7_1
+    v11_2 = 0.0
+    v11_2 += -1.0 * x6_2
+    v11_2 += 1.0 * x7_2
+    n11 = math.sqrt(v11_0 * v11_0 + v11_1 * v11_1 + v11_2 * v11_2)
+    v12_0 = 0.0
+    v12_0 += -0.25 * x0_0
+    v12_0 += 0.25 * x1_0
+    v12_0 += 0.25 * x2_0
+    v12_0 += -0.25 * x3_0
+    v12_0 += -0.25 * x4_0
+    v12_0 += 0.25 * x5_0
+    v12_0 += 0.25 * x6_0
+    v12_0 += -0.25 * x7_0
+    v12_1 = 0.0
+    v12_1 += -0.25 * x0_1
+    v12_1 += 0.25 * x1_1
+    v12_1 += 0.25 * x2_1
+    v12_1 += -0.25 * x3_1
+    v12_1 += -0.25 * x4_1
+    v12_1 += 0.25 * x5_1
+    v12_1 += 0.25 * x6_1
+    v12_1 += -0.25 * x7_1
+    v12_2 = 0.0
+    v12_2 += -0.25 * x0_2
+    v12_2 += 0.25 * x1_2
+    v12_2 += 0.25 * x2_2
+    v12_2 += -0.25 * x3_2
+    v12_2 += -0.25 * x4_2
+    v12_2 += 0.25 * x5_2
+    v12_2 += 0.25 * x6_2
+    v12_2 += -0.25 * x7_2
+    n12 = math.sqrt(v12_0 * v12_0 + v12_1 * v12_1 + v12_2 * v12_2)
+    v13_0 = 0.0
+    v13_0 += -0.25 * x0_0
+    v13_0 += -0.25 * x1_0
+    v13_0 += 0.25 * x2_0
+    v13_0 += 0.25 * x3_0
+    v13_0 += -0.25 * x4_0
+    v13_0 += -0.25 * x5_0
+    v13_0 += 0.25 * x6_0
+    v13_0 += 0.25 * x7_0
+    v13_1 = 0.0
+    v13_1 += -0.25 * x0_1
+    v13_1 += -0.25 * x1_1
+    v13_1 += 0.25 * x2_1
+    v13_1 += 0.25 * x3_1
+    v13_1 += -0.25 * x4_1
+    v13_1 += -0.25 * x5_1
+    v13_1 += 0.25 * x6_1
+    v13_1 += 0.25 * x7_1
+    v13_2 = 0.0
+    v13_2 += -0.25 * x0_2
+    v13_2 += -0.25 * x1_2
+    v13_2 += 0.25 * x2_2
+    v13_2 += 0.25 * x3_2
+    v13_2 += -0.25 * x4_2
+    v13_2 += -0.25 * x5_2
+    v13_2 += 0.25 * x6_2
+    v13_2 += 0.25 * x7_2
+    n13 = math.sqrt(v13_0 * v13_0 + v13_1 * v13_1 + v13_2 * v13_2)
+    v14_0 = 0.0
+    v14_0 += -0.25 * x0_0
+    v14_0 += -0.25 * x1_0
+    v14_0 += -0.25 * x2_0
+    v14_0 += -0.25 * x3_0
+    v14_0 += 0.25 * x4_0
+    v14_0 += 0.25 * x5_0
+    v14_0 += 0.25 * x6_0
+    v14_0 += 0.25 * x7_0
+    v14_1 = 0.0
+    v14_1 += -0.25 * x0_1
+    v14_1 += -0.25 * x1_1
+    v14_1 += -0.25 * x2_1
+    v14_1 += -0.25 * x3_1
+    v14_1 += 0.25 * x4_1
+    v14_1 += 0.25 * x5_1
+    v14_1 += 0.25 * x6_1
+    v14_1 += 0.25 * x7_1
+    v14_2 = 0.0
+    v14_2 += -0.25 * x0_2
+    v14_2 += -0.25 * x1_2
+    v14_2 += -0.25 * x2_2
+    v14_2 += -0.25 * x3_2
+    v14_2 += 0.25 * x4_2
+    v14_2 += 0.25 * x5_2
+    v14_2 += 0.25 * x6_2
+    v14_2 += 0.25 * x7_2
+    n14 = math.sqrt(v14_0 * v14_0 + v14_1 * v14_1 + v14_2 * v14_2)
+    best = math.inf
+    det = (v0_0 * (v1_1 * v2_2 - v1_2 * v2_1) - v1_0 * (v0_1 * v2_2 - v0_2 * v2_1) + v2_0 * (v0_1 * v1_2 - v0_2 * v1_1)) * 1.0
+    lengths = n0 * n1 * n2
+    val = 1.0 * det / lengths if lengths > 2.2250738585072014e-308 else 0.0
+    if val < best:
+        best = val
+    det = (v3_0 * (v0_1 * v4_2 - v0_2 * v4_1) - v0_0 * (v3_1 * v4_2 - v3_2 * v4_1) + v4_0 * (v3_1 * v0_2 - v3_2 * v0_1)) * -1.0
+    lengths = n3 * n0 * n4
+    val = 1.0 * det / lengths if lengths > 2.2250738585072014e-308 else 0.0
+    if val < best:
+        best = val
+    det = (v5_0 * (v3_1 * v6_2 - v3_2 * v6_1) - v3_0 * (v5_1 * v6_2 - v5_2 * v6_1) + v6_0 * (v5_1 * v3_2 - v5_2 * v3_1)) * -1.0
+    lengths = n5 * n3 * n6
+    val = 1.0 * det / lengths if lengths > 2.2250738585072014e-308 else 0.0
+    if val < best:
+        best = val
+    det = (v1_0 * (v5_1 * v7_2 - v5_2 * v7_1) - v5_0 * (v1_1 * v7_2 - v1_2 * v7_1) + v7_0 * (v1_1 * v5_2 - v1_2 * v5_1)) * 1.0
+    lengths = n1 * n5 * n7
+    val = 1.0 * det / lengths if lengths > 2.2250738585072014e-308 else 0.0
+    if val < best:
+        best = val
+    det = (v8_0 * (v9_1 * v2_2 - v9_2 * v2_1) - v9_0 * (v8_1 * v2_2 - v8_2 * v2_1) + v2_0 * (v8_1 * v9_2 - v8_2 * v9_1)) * -1.0
+    lengths = n8 * n9 * n2
+    val = 1.0 * det / lengths if lengths > 2.2250738585072014e-308 else 0.0
+    if val < best:
+        best = val
+    det = (v9_0 * (v10_1 * v4_2 - v10_2 * v4_1) - v10_0 * (v9_1 * v4_2 - v9_2 * v4_1) + v4_0 * (v9_1 * v10_2 - v9_2 * v10_1)) * 1.0
+    lengths = n9 * n10 * n4
+    val = 1.0 * det / lengths if lengths > 2.2250738585072014e-308 else 0.0
+    if val < best:
+        best = val
+    det = (v10_0 * (v11_1 * v6_2 - v11_2 * v6_1) - v11_0 * (v10_1 * v6_2 - v10_2 * v6_1) + v6_0 * (v10_1 * v11_2 - v10_2 * v11_1)) * 1.0
+    lengths = n10 * n11 * n6
+    val = 1.0 * det / lengths if lengths > 2.2250738585072014e-308 else 0.0
+    if val < best:
+        best = val
+    det = (v11_0 * (v8_1 * v7_2 - v8_2 * v7_1) - v8_0 * (v11_1 * v7_2 - v11_2 * v7_1) + v7_0 * (v11_1 * v8_2 - v11_2 * v8_1)) * -1.0
+    lengths = n11 * n8 * n7
+    val = 1.0 * det / lengths if lengths > 2.2250738585072014e-308 else 0.0
+    if val < best:
+        best = val
+    det = (v12_0 * (v13_1 * v14_2 - v13_2 * v14_1) - v13_0 * (v12_1 * v14_2 - v12_2 * v14_1) + v14_0 * (v12_1 * v13_2 - v12_2 * v13_1)) * 1.0
+    lengths = n12 * n13 * n14
+    val = 1.0 * det / lengths if lengths > 2.2250738585072014e-308 else 0.0
+    if val < best:
+        best = val
+    return best
+
+
+@njit(cache=True, nogil=True)
+def scaled_jacobian_loop(sid, points, conn, ids, start, stop, out):
+    """The scaled Jacobian of cells ids[start:stop] of the type with this id (SJ_GENERATED) into out;
+    False for an id without generated code."""
+    if sid == 1:
+        for t in range(start, stop):
+            out[t] = _sj_tetra(points, conn, ids[t])
+        return True
+    if sid == 2:
+        for t in range(start, stop):
+            out[t] = _sj_pyramid(points, conn, ids[t])
+        return True
+    if sid == 3:
+        for t in range(start, stop):
+            out[t] = _sj_wedge(points, conn, ids[t])
+        return True
+    if sid == 4:
+        for t in range(start, stop):
+            out[t] = _sj_hexahedron(points, conn, ids[t])
         return True
     return False

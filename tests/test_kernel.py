@@ -494,6 +494,47 @@ def test_compiled_scaled_jacobian_is_verdicts_as_quality_computes_it():
         assert (got < 0.9).any()  # perturbed corners: not the ideal value everywhere
 
 
+def test_generated_scaled_jacobian_is_current_and_bit_identical_to_the_table_loop(monkeypatch):
+    """Each linear type's scaled Jacobian runs straight-line generated code (_kernel_gen) that gives the table
+    loop's numbers bit for bit, on random, inverted, ideal and degenerate cells; a sample table the generated code
+    was not made from is not used (its fingerprint differs), and would give other numbers."""
+    from hexsos_plugins import quality
+
+    rng = np.random.default_rng(74)
+    for name, X0 in quality.IDEAL.items():
+        X = X0[None] + 0.4 * rng.standard_normal((400,) + X0.shape)
+        X[0] = X0
+        X[1] = 0.0  # every node at one point: every edge product 0
+        X[2, 1:] = X[2, 0] + 1e-170  # edge products below the smallest normal number
+        X[3] = X0 * np.array([1.0, 1.0, -1.0])  # inverted
+        P = X.reshape(-1, 3)
+        C = np.arange(len(P)).reshape(len(X), -1)
+        ids = np.arange(len(C))
+        assert kernel._sj_id(name) == kernel.SJ_GENERATED.index(name) + 1
+        gen, loop = np.empty(len(C)), np.empty(len(C))
+        kernel._impl.scaled_jacobian_chunk(*kernel._sj_args(P, C, ids, name, gen, 0, len(C)))
+        kernel._impl.scaled_jacobian_chunk(*kernel._sj_args(P, C, ids, name, loop, 0, len(C), generated=False))
+        assert np.array_equal(gen, loop), name
+        assert gen[1] == 0.0 and gen[2] == 0.0 and gen[3] < 0 < gen[0] and (gen < 0).any() and (gen > 0.5).any()
+    # negative case: swap two samples' first columns: the loop computes other numbers, the fingerprint moves
+    real = kernel.sj_tables
+
+    def swapped(name):
+        vptr, vnode, vw, samp, ssign, factor = real(name)
+        samp = samp.copy()
+        samp[[0, 1], 0] = samp[[1, 0], 0]
+        return vptr, vnode, vw, samp, ssign, factor
+
+    X = quality.IDEAL["hexahedron"][None] + 0.3 * rng.standard_normal((50, 8, 3))
+    P, C = X.reshape(-1, 3), np.arange(400).reshape(50, 8)
+    before = kernel.scaled_jacobian(P, C)
+    monkeypatch.setattr(kernel, "sj_tables", swapped)
+    assert kernel._sj_id("hexahedron") == 0
+    other = np.empty(50)
+    kernel._impl.scaled_jacobian_chunk(*kernel._sj_args(P, C, np.arange(50), "hexahedron", other, 0, 50))
+    assert not np.array_equal(before, other)
+
+
 def test_the_compiled_kernel_releases_the_gil():
     """The kernel's threads run in parallel only if its compiled calls release the GIL: while one runs, another
     Python thread keeps counting (with the GIL held it would stand still for the whole call)."""
