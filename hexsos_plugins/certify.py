@@ -461,29 +461,19 @@ def _check_block(P, conn, name, opts: _Options, progress=None, offset=0, total=N
         sos_solves, boxes = _sos_everything(P, conn, idx, opts, lower, value, argmin, err, scale, ratio, sos_status,
                                             method, r, boxes)
     elif name == "hexahedron":
-        open_ = np.flatnonzero(~r["closed"] & ~flat)
+        open_ = wide[~r["closed"][wide] & ~flat[wide]]  # the others were closed or flat before the wide pass
         if open_.size:
             sos_solves = _run_sos(P, conn, open_, opts, lower, value, argmin, err, ratio, sos_status)
             method[open_] = _SOS
 
-    status = np.full(M, -1, dtype=np.int8)
-    status[lower > 0] = 1
-    status[value + err <= 0] = 0
-    status[flat] = -1
+    # the verdicts, and world units in place (the scaled values are not needed after this), in one compiled
+    # pass. ``near``: signs float64 could not settle (the bracket closed around 0, or the witness within its
+    # rounding bound of 0): exact rational arithmetic on the input coordinates. Cells left open by the search
+    # limits are not sent (they stay undecided: raise max_boxes / max_depth)
+    status, near, unrep = kernel.finish(value, lower, err, r["corner"], scale, r["k"], flat, r["closed"])
+    min_det, low_w, corner, scale_w = value, lower, r["corner"], scale
     method[flat] = _FLAT
-
-    # signs float64 could not settle (the bracket closed around 0, or the witness within its rounding bound of 0):
-    # exact rational arithmetic on the input coordinates. Cells left open by the search limits are not sent
-    # (they stay undecided: raise max_boxes / max_depth)
-    near = np.flatnonzero((status == -1) & ~flat & (r["closed"] | (np.abs(value) <= 64.0 * err)))
-
-    # world units, in place: the scaled values are not needed after this
-    k = r["k"]
-    min_det, bad1 = kernel.to_world(value, k, down=False, out=value)
-    low_w, bad2 = kernel.to_world(lower, k, down=True, out=lower)
-    corner, _ = kernel.to_world(r["corner"], k, down=False, out=r["corner"])
-    scale_w, _ = kernel.to_world(scale, k, down=False, out=scale)
-    unrep = bad1 | bad2
+    near = np.flatnonzero(near)
     if near.size:
         from .exact import decide, round_down, round_nearest
 

@@ -697,6 +697,31 @@ def to_world(v, k, *, down: bool, out=None):
     return out, bad
 
 
+def _finish_outputs(m):
+    return np.empty(m, dtype=np.int8), np.empty(m, dtype=np.bool_), np.empty(m, dtype=np.bool_)
+
+
+def _finish_args(value, lower, err, corner, scale, k, flat, closed, status, near, bad, start, stop):
+    return (value, lower, err, corner, scale, k, flat, closed, int(start), int(stop), status, near, bad)
+
+
+def finish(value, lower, err, corner, scale, k, flat, closed):
+    """The verdicts of cells from run_cells' outputs (scaled units), and their numbers in world units, in place
+    (value, corner and scale as :func:`to_world` with ``down=False``, lower with ``down=True``): returns status
+    (1 valid: lower > 0; 0 invalid: value + err <= 0; -1 otherwise and where flat), near (undecided, not flat,
+    and the bracket closed or the value within 64 err of 0: for the exact decision) and unrepresentable (value
+    or lower). One compiled pass, threaded as the kernel is."""
+    arrays = [np.ascontiguousarray(a, dtype=np.float64) for a in (value, lower, err, corner, scale)]
+    if any(a is not b for a, b in zip(arrays, (value, lower, err, corner, scale))):
+        raise TypeError("finish: expected contiguous float64 arrays (it writes them in place)")
+    k = np.ascontiguousarray(k, dtype=np.int64)
+    flat = np.ascontiguousarray(flat, dtype=np.bool_)
+    closed = np.ascontiguousarray(closed, dtype=np.bool_)
+    outs = _finish_outputs(value.shape[0])
+    _spread(_impl.finish_chunk, value.shape[0], lambda a, b: _finish_args(*arrays, k, flat, closed, *outs, a, b))
+    return outs
+
+
 def entry_point_arguments() -> dict:
     """Example arguments of every entry point of the compiled source (a trilinear hexahedron), by name: the
     ahead-of-time build derives the exported signatures from them."""
@@ -716,4 +741,7 @@ def entry_point_arguments() -> dict:
         "det_at_chunk": _det_at_args(P, conn, ids, np.zeros((8, 3)), np.empty(1), 0, 1),
         "world_chunk": _world_args(np.zeros(1), np.zeros(1, dtype=np.int64), True, np.empty(1),
                                    np.empty(1, dtype=np.bool_), 0, 1),
+        "finish_chunk": _finish_args(*(np.zeros(1) for _ in range(5)), np.zeros(1, dtype=np.int64),
+                                     np.zeros(1, dtype=np.bool_), np.zeros(1, dtype=np.bool_),
+                                     *_finish_outputs(1), 0, 1),
     }

@@ -329,6 +329,42 @@ def test_world_units_round_as_ldexp_and_in_the_right_direction():
     assert 0 < bad.sum() < n  # the adversarial values do reach the rounding branches
 
 
+def test_finish_gives_the_verdict_rules_and_the_world_units_of_to_world():
+    """kernel.finish (the check's last compiled pass) gives the verdict rules (valid: lower > 0, invalid:
+    value + err <= 0, flat: undecided; near: undecided, not flat, bracket closed or value within 64 err of 0)
+    and the world units of the reference conversion, bit for bit, on adversarial values with NaN and exponents
+    beyond the float range; lower bounds rounded down, the rest to nearest."""
+    rng = np.random.default_rng(12)
+    n = 6000
+    value = rng.standard_normal(n) * 2.0 ** rng.integers(-1074, 1000, n).astype(float)
+    lower = value - np.abs(rng.standard_normal(n)) * 2.0 ** rng.integers(-1074, 1000, n).astype(float)
+    err = np.abs(value) * 2.0 ** rng.integers(-60, 2, n).astype(float)
+    value[:6] = [np.nan, 0.0, -0.0, 1e-300, -1e-300, np.inf]
+    lower[:6] = [np.nan, 0.0, -1.0, 1e-320, -np.inf, 1.0]
+    corner, scale = rng.standard_normal(n), np.abs(rng.standard_normal(n)) + 1.0
+    k = np.sort(rng.integers(-400, 400, n))
+    flat, closed = rng.random(n) < 0.1, rng.random(n) < 0.5
+    want_status = np.full(n, -1, dtype=np.int8)
+    want_status[lower > 0] = 1
+    want_status[value + err <= 0] = 0
+    want_status[flat] = -1
+    want_near = (want_status == -1) & ~flat & (closed | (np.abs(value) <= 64.0 * err))
+    want = [_to_world_reference(a.copy(), 3 * k, down=d) for a, d in ((value, False), (lower, True), (corner, False),
+                                                                     (scale, False))]
+    got = [a.copy() for a in (value, lower, err, corner, scale)]
+    status, near, bad = kernel.finish(*got, k, flat, closed)
+    assert np.array_equal(status, want_status) and np.array_equal(near, want_near)
+    assert {0, 1, -1} <= set(status.tolist()) and near.any()
+    for a, (w, _) in zip((got[0], got[1], got[3], got[4]), want):
+        assert np.array_equal(a.view(np.int64), w.view(np.int64))
+    assert np.array_equal(got[2], err)  # err stays in scaled units
+    assert np.array_equal(bad, want[0][1] | want[1][1]) and 0 < bad.sum() < n
+    # negative case: the rules are not a constant: moving every lower bound above 0 changes the verdicts
+    status2, _, _ = kernel.finish(np.full(n, 2.0), np.ones(n), err.copy(), corner.copy(), scale.copy(), k,
+                                  np.zeros(n, dtype=bool), closed)
+    assert (status2 == 1).all() and not np.array_equal(status2, status)
+
+
 def test_flatness_scale_is_not_a_free_knob():
     """Flat means det J tiny against its own terms (a sheared slab), not a small cell nor a thin one: the top face
     moved in its plane with height 1e-6 is decided, with 1e-14 it is flat (undecided at once, no exact work);
