@@ -394,11 +394,9 @@ _SOS_MIN_PER_THREAD = 16
 @contextmanager
 def _threads(jobs):
     """The kernel's thread count inside the block (restored afterwards); 0: one per core."""
-    import os
-
     from . import kernel
 
-    want = (os.cpu_count() or 1) if jobs == 0 else max(1, int(jobs))
+    want = kernel.cores() if jobs == 0 else max(1, int(jobs))
     old = kernel.set_threads(want)
     try:
         yield want

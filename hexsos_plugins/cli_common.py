@@ -64,8 +64,9 @@ def add_check_options(p):
 
 def add_run_options(p):
     """--jobs, --processes, --scheduler, --progress / --no-progress (every command that runs the kernel)."""
-    p.add_argument("--jobs", type=int, default=1, metavar="N",
-                   help="threads in the compiled kernel (0: one per core; default 1)")
+    p.add_argument("--jobs", type=int, default=None, metavar="N",
+                   help="threads in the compiled kernel (0: one per core, the default; 1 with --processes or "
+                        "--scheduler, whose workers run one each)")
     p.add_argument("--processes", type=int, default=1, metavar="N",
                    help="worker processes, each running the kernel (0: one per core; default 1: none)")
     p.add_argument("--scheduler", metavar="ADDRESS",
@@ -73,6 +74,14 @@ def add_run_options(p):
     p.add_argument("--progress", dest="progress", action="store_true", default=None,
                    help="show a progress bar on stderr even when it is not a terminal")
     p.add_argument("--no-progress", dest="progress", action="store_false", help="never show a progress bar")
+
+
+def resolve_run_options(args):
+    """The default of --jobs: every core in this process, one thread per worker where processes or a cluster
+    do the work (no oversubscription)."""
+    if getattr(args, "jobs", 1) is None:
+        args.jobs = 0 if getattr(args, "processes", 1) == 1 and not getattr(args, "scheduler", None) else 1
+    return args
 
 
 def read_mesh(path, fix_orientation: bool):

@@ -482,6 +482,14 @@ _POOL = None
 last_threads: set = set()
 
 
+def cores() -> int:
+    """The cores this process may run on (its CPU affinity, which a container or ``taskset`` narrows)."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except (AttributeError, OSError):  # not on Linux
+        return os.cpu_count() or 1
+
+
 def set_threads(n: int) -> int:
     """Let the kernel use n threads (its chunk functions release the GIL); returns the previous setting."""
     global _THREADS

@@ -140,7 +140,9 @@ def executor(jobs: int = 1, scheduler=None):
     if scheduler is not None:
         return DaskExecutor(scheduler)
     if jobs is None or jobs == 0:
-        jobs = os.cpu_count() or 1
+        from .kernel import cores
+
+        jobs = cores()
     if not isinstance(jobs, int) or jobs < 1:
         raise InvalidInputError(f"jobs: expected a positive number of processes (or 0 for all cores), found {jobs!r}")
     return SerialExecutor() if jobs == 1 else ProcessExecutor(jobs)

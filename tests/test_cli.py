@@ -110,6 +110,33 @@ def test_check_output_keeps_everything_and_adds_the_arrays(demo_file, tmp_path, 
     assert "region" in m.cell_data
 
 
+def test_check_uses_every_core_by_default_and_one_with_jobs_1(tmp_path, capsys):
+    """The command line runs the kernel on every core this process may use unless told otherwise (the same
+    verdicts as one thread); where worker processes or a cluster do the work, each runs one thread."""
+    import argparse
+
+    from hexsos_plugins import kernel
+    from hexsos_plugins.cli_common import resolve_run_options
+
+    P, H = structured_grid(30)  # 27,000 hexes: several tasks of cells
+    path = tmp_path / "grid.vtu"
+    meshio.write(path, meshio.Mesh(P, [("hexahedron", H)]))
+    runs = {}
+    for extra in ([], ["--jobs", "1"]):
+        kernel.last_threads = set()
+        assert cli.main(["check", str(path), "--json", "--no-progress"] + extra) == 0
+        runs[tuple(extra)] = (json.loads(capsys.readouterr().out), set(kernel.last_threads))
+    (default, threads), (one, none) = runs[()], runs[("--jobs", "1")]
+    assert len(threads) == (kernel.cores() if kernel.cores() > 1 else 0) and none == set()
+    assert default["valid"] == one["valid"] == 27000
+    assert kernel._THREADS == 1  # restored after the command
+    ns = argparse.Namespace
+    assert resolve_run_options(ns(jobs=None, processes=1, scheduler=None)).jobs == 0
+    assert resolve_run_options(ns(jobs=None, processes=2, scheduler=None)).jobs == 1
+    assert resolve_run_options(ns(jobs=None, processes=1, scheduler="tcp://h:8786")).jobs == 1
+    assert resolve_run_options(ns(jobs=3, processes=2, scheduler=None)).jobs == 3  # an explicit choice stays
+
+
 def test_left_handed_file_is_named_and_can_be_fixed(tmp_path, capsys):
     P, H = structured_grid(2)
     mirrored = H[:, [0, 3, 2, 1, 4, 7, 6, 5]]
