@@ -387,8 +387,9 @@ def _solver(opts: _Options, thread: int = 0):
     return _SOLVERS[key]
 
 
-#: Hexes per SOS thread below which the relaxation runs in the calling thread.
-_SOS_MIN_PER_THREAD = 16
+#: Hexes per SOS thread below which the relaxation runs in the calling thread: a thread pays once it has some
+#: 20 ms of solves (quad2 takes about 1.5 ms per hex, the paper's relaxation 25 ms).
+_SOS_MIN_PER_THREAD = {"quad2": 16, "paper": 1}
 
 
 @contextmanager
@@ -537,7 +538,7 @@ def _run_sos(P, conn, idx, opts, lower, value, argmin, err, ratio, sos_status) -
                 lower[i] = max(lower[i], lo)
                 found[j] = am
 
-    n_threads = max(1, min(kernel._THREADS, idx.size // _SOS_MIN_PER_THREAD))
+    n_threads = max(1, min(kernel._THREADS, idx.size // _SOS_MIN_PER_THREAD.get(opts.relaxation, 16)))
     if n_threads == 1:
         solve(range(idx.size), 0)
     else:

@@ -58,6 +58,17 @@ def test_sos_on_two_threads_agrees_bit_for_bit(monkeypatch):
     for name in ("recovery_ratio", "sos_status"):
         assert np.array_equal(getattr(one, name), getattr(two, name), equal_nan=True), name
     assert (one.sos_status == 1).sum() > 50
+    # the paper's relaxation (25 ms a hex) takes threads from two hexes on; quad2 not for so few
+    seen.clear()
+    P2, H2 = hexes_to_mesh(random_hexes(2, sigma=0.3, seed=63))
+    one = hs.check(P2, H2, method="sos", relaxation="paper", jobs=1)
+    seen.clear()
+    two = hs.check(P2, H2, method="sos", relaxation="paper", jobs=2)
+    assert len(seen) == 2 and all(n.startswith("hexsos-sos") for n in seen)
+    _same(one, two)
+    seen.clear()
+    hs.check(P2, H2, method="sos", jobs=2)
+    assert seen == {threading.current_thread().name}
 
 
 def test_processes(sample):
