@@ -15,7 +15,7 @@ import sys
 
 from . import cli_check, cli_doors, cli_repair
 from ._version import __version__
-from .cli_common import fail, resolve_run_options
+from .cli_common import announce_compilation, fail, resolve_run_options
 from .errors import HexsosError
 
 __all__ = ["main", "build_parser"]
@@ -42,6 +42,7 @@ def main(argv=None) -> int:
         return 2
     cli_doors.auto_record()  # lets the ParaView plugin, loaded by hand, find this environment
     resolve_run_options(args)
+    announce_compilation(args)
     try:
         return args.func(args)
     except HexsosError as exc:

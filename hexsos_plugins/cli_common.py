@@ -84,6 +84,21 @@ def resolve_run_options(args):
     return args
 
 
+def announce_compilation(args) -> bool:
+    """For a command that runs the kernel: say on stderr when the kernel is about to be compiled just in time (the
+    compiled extension missing or built from other source), so that the wait is not a mystery."""
+    if not hasattr(args, "jobs"):
+        return False
+    from .kernel import compiles_at_first_use
+
+    if not compiles_at_first_use():
+        return False
+    sys.stderr.write("hexsos: compiling the kernel just in time, once (one to two minutes, then cached): the compiled "
+                     "extension is not installed for this source; pip install builds it\n")
+    sys.stderr.flush()
+    return True
+
+
 def read_mesh(path, fix_orientation: bool):
     """Read ``path``; a cell type whose cells are *all* negatively oriented (the file mirrors that type's node
     order) is an error naming it, unless ``fix_orientation``, which flips exactly those types. Returns

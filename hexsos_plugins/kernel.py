@@ -90,6 +90,21 @@ def implementation() -> str:
     return _KIND
 
 
+def _jit_cached(dispatcher):
+    """Whether numba's cache holds machine code of this ``cache=True`` function for its current source (None:
+    numba's cache cannot be read)."""
+    try:
+        return bool(dispatcher._cache._cache_file._load_index())
+    except Exception:  # numba's cache internals: unknown, not an error
+        return None
+
+
+def compiles_at_first_use() -> bool:
+    """Whether the kernel runs just in time with nothing cached for this source yet: its first call compiles it
+    (one to two minutes, once)."""
+    return _KIND == "jit" and _jit_cached(_impl.run_chunk) is False
+
+
 _DIMS = {"line": 1, "tri": 2, "tet": 3}
 
 

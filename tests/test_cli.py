@@ -137,6 +137,39 @@ def test_check_uses_every_core_by_default_and_one_with_jobs_1(tmp_path, capsys):
     assert resolve_run_options(ns(jobs=3, processes=2, scheduler=None)).jobs == 3  # an explicit choice stays
 
 
+def test_a_just_in_time_compilation_is_announced_and_nothing_else(tmp_path, monkeypatch, capsys):
+    """Where the kernel would compile just in time (no extension for this source, nothing in numba's cache) the
+    command says so on stderr before the wait; with the extension, or a warm cache, or for a command that runs
+    no kernel, it says nothing. numba's cache is read for real: a fresh cache=True function has none until its
+    first call."""
+    import argparse
+    import importlib
+    from types import SimpleNamespace
+
+    from hexsos_plugins import kernel
+    from hexsos_plugins.cli_common import announce_compilation
+
+    (tmp_path / "hexsos_tiny_jit.py").write_text(
+        "from numba import njit\n\n\n@njit(cache=True)\ndef f(x):\n    return x + 1\n\n\n"
+        "@njit(cache=True)\ndef g(x):\n    return x + 2\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    tiny = importlib.import_module("hexsos_tiny_jit")
+    assert kernel._jit_cached(tiny.f) is False
+    assert tiny.f(1) == 2
+    assert kernel._jit_cached(tiny.f) is True and kernel._jit_cached(tiny.g) is False
+    assert kernel._jit_cached(object()) is None  # not a cached numba function: unknown, no notice
+    runs = argparse.Namespace(jobs=0)
+    monkeypatch.setattr(kernel, "_KIND", "jit")
+    monkeypatch.setattr(kernel, "_impl", SimpleNamespace(run_chunk=tiny.g))
+    assert announce_compilation(runs) and "compiling the kernel just in time" in capsys.readouterr().err
+    assert not announce_compilation(argparse.Namespace())  # a command without the kernel
+    monkeypatch.setattr(kernel, "_impl", SimpleNamespace(run_chunk=tiny.f))  # cached: no wait, no notice
+    assert not announce_compilation(runs)
+    monkeypatch.setattr(kernel, "_KIND", "aot")
+    monkeypatch.setattr(kernel, "_impl", SimpleNamespace(run_chunk=tiny.g))
+    assert not announce_compilation(runs) and capsys.readouterr().err == ""
+
+
 def test_left_handed_file_is_named_and_can_be_fixed(tmp_path, capsys):
     P, H = structured_grid(2)
     mirrored = H[:, [0, 3, 2, 1, 4, 7, 6, 5]]
