@@ -952,7 +952,7 @@ def _reduced_step(Z, nz, g, H, gr, Hr, Lc, y, step):
 
 
 @njit(cache=True, nogil=True)
-def _polish(b, x0, M, exps, G, h, iterations, out, c, pw, Q, Z, Hr, Lc, v, g, H, gr, y, step, xt):
+def _polish(b, x0, Mptr, Midx, Mval, exps, G, h, iterations, out, c, pw, Q, Z, Hr, Lc, v, g, H, gr, y, step, xt):
     """Projected Newton descent on the polynomial with Bernstein coefficients b from x0 (in the element).
 
     Each iteration takes as active the faces the point is on where the descent direction leaves, a basis Z
@@ -961,12 +961,13 @@ def _polish(b, x0, M, exps, G, h, iterations, out, c, pw, Q, Z, Hr, Lc, v, g, H,
     then the longest feasible step is halved until the value falls. It stops when no step lowers the value,
     when a Newton step's predicted decrease is within the rounding of a value (at a minimum: no shorter step
     could show one), or when a step no longer moves the point. out receives the best point (x0 if nothing
-    lowers the value); the value there (monomial form, for ranking only) is returned."""
+    lowers the value); the value there (monomial form, for ranking only) is returned. (Mptr, Midx, Mval): the
+    nonzeros of the Bernstein-to-monomial matrix by row."""
     nb = b.shape[0]
     for i in range(nb):
         s = 0.0
-        for j in range(nb):
-            s += M[i, j] * b[j]
+        for q in range(Mptr[i], Mptr[i + 1]):
+            s += Mval[q] * b[Midx[q]]
         c[i] = s
     for a in range(3):
         out[a] = x0[a]
@@ -1050,8 +1051,8 @@ def _polish(b, x0, M, exps, G, h, iterations, out, c, pw, Q, Z, Hr, Lc, v, g, H,
 
 @njit(cache=True, nogil=True)
 def run_chunk(points, conn, ids, start, stop, cptr, cidx_, cval, col_a, col_b, col_w, col_off, xp, xi, xj, xw, dp,
-               di, dj, dw, consts, sizes, S, nchildren, cmaps, ctrl, vidx, cidx, M, exps, G, h, fdim, fslot, fexp,
-               fcoef, nctrl, nx, rtol, flat_rtol, max_depth, max_iter, polish_iter, cap,
+               di, dj, dw, consts, sizes, S, nchildren, cmaps, ctrl, vidx, cidx, Mptr, Midx, Mval, exps, G, h, fdim,
+               fslot, fexp, fcoef, nctrl, nx, rtol, flat_rtol, max_depth, max_iter, polish_iter, cap,
                o_lower, o_value, o_argmin, o_err, o_scale, o_corner, o_depth, o_closed, o_flat, o_k, o_boxes,
                o_lowroot, o_size):
     """The kernel on the cells ids[start:stop] (outputs at the same positions), with scratch of its own."""
@@ -1163,7 +1164,8 @@ def run_chunk(points, conn, ids, start, stop, cptr, cidx_, cval, col_a, col_b, c
         elif not closed:
             # polish first, from the best vertex: a near-optimal value from the start prunes boxes at once
             verr = err + consts[4] * U * scale + consts[5] * ETA
-            _polish(b, argmin, M, exps, G, h, polish_iter, x, pc, pw, Q, Z, Hr, Lc, v3, g3, H3, gr, y3, st3, xt)
+            _polish(b, argmin, Mptr, Midx, Mval, exps, G, h, polish_iter, x, pc, pw, Q, Z, Hr, Lc, v3, g3, H3, gr, y3,
+                    st3, xt)
             v_new = _eval_bernstein(b, x, fdim, fslot, fexp, fcoef, sizes, W, xs)
             if v_new < value:
                 value = v_new
@@ -1179,7 +1181,8 @@ def run_chunk(points, conn, ids, start, stop, cptr, cidx_, cval, col_a, col_b, c
             if depth == 0:
                 depth = 1  # the point may have left the root's vertices: evaluated, not a coefficient
             if upper < value:  # the search found a lower vertex than the polished point: polish from there
-                _polish(b, x, M, exps, G, h, polish_iter, st3, pc, pw, Q, Z, Hr, Lc, v3, g3, H3, gr, y3, xs, xt)
+                _polish(b, x, Mptr, Midx, Mval, exps, G, h, polish_iter, st3, pc, pw, Q, Z, Hr, Lc, v3, g3, H3, gr, y3,
+                        xs, xt)
                 v1 = _eval_bernstein(b, x, fdim, fslot, fexp, fcoef, sizes, W, xs)
                 v2 = _eval_bernstein(b, st3, fdim, fslot, fexp, fcoef, sizes, W, xs)
                 if v2 < v1:
@@ -1231,7 +1234,7 @@ def evaluate(b, X, fdim, fslot, fexp, fcoef, sizes, maxn, out):
 
 
 @njit(cache=True, nogil=True)
-def polish_many(b, X0, M, exps, G, h, iterations, fdim, fslot, fexp, fcoef, sizes, maxn, out, vals):
+def polish_many(b, X0, Mptr, Midx, Mval, exps, G, h, iterations, fdim, fslot, fexp, fcoef, sizes, maxn, out, vals):
     nb = b.shape[1]
     pc = np.empty(nb)
     pw = np.empty((3, 8))
@@ -1250,7 +1253,8 @@ def polish_many(b, X0, M, exps, G, h, iterations, fdim, fslot, fexp, fcoef, size
     W = np.empty((sizes.shape[0], maxn))
     xs = np.empty(3)
     for m in range(b.shape[0]):
-        _polish(b[m], X0[m], M, exps, G, h, iterations, x, pc, pw, Q, Z, Hr, Lc, v3, g3, H3, gr, y3, st3, xt)
+        _polish(b[m], X0[m], Mptr, Midx, Mval, exps, G, h, iterations, x, pc, pw, Q, Z, Hr, Lc, v3, g3, H3, gr, y3, st3,
+                xt)
         v_new = _eval_bernstein(b[m], x, fdim, fslot, fexp, fcoef, sizes, W, xs)
         v_old = _eval_bernstein(b[m], X0[m], fdim, fslot, fexp, fcoef, sizes, W, xs)
         if v_new < v_old:
