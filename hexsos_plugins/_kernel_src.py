@@ -339,20 +339,23 @@ def _eval_bernstein(b, x, fdim, fslot, fexp, fcoef, sizes, W, xs):
 
 
 @njit(cache=True, nogil=True)
-def _apply_factor(src, dst, M, nk, pre, post):
-    """dst = M applied along one factor axis of a row-major coefficient tensor of shape (pre, nk, post)."""
+def _apply_factor(src, dst, M, nz, nk, pre, post):
+    """dst = M applied along one factor axis of a row-major coefficient tensor of shape (pre, nk, post). Row r
+    of M has nz[r, 0] nonzeros, in the columns nz[r, 1:] (ascending): only they are summed, in the dense
+    product's order (the skipped terms are exact zeros: the same sums bit for bit)."""
     for i0 in range(pre):
         for j in range(post):
             base = i0 * nk * post + j
             for r in range(nk):
                 s = 0.0
-                for c in range(nk):
+                for q in range(1, nz[r, 0] + 1):
+                    c = nz[r, q]
                     s += M[r, c] * src[base + c * post]
                 dst[base + r * post] = s
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _children(coef, out, work, S, nchildren, sizes, fdim, tri):
+def _children(coef, out, work, S, Snz, nchildren, sizes, fdim, tri):
     """All children's coefficients of one box into out[c], c row-major over the factors' child indices.
 
     A line factor of degree nk - 1 is halved by de Casteljau at 1/2 (each step averages two numbers: the same
@@ -414,7 +417,7 @@ def _children(coef, out, work, S, nchildren, sizes, fdim, tri):
                     work[t, i] = out[t, i]
             for t in range(count):
                 for c in range(nck):
-                    _apply_factor(work[t], out[t * nck + c], S[k, c], nk, pre, post)
+                    _apply_factor(work[t], out[t * nck + c], S[k, c], Snz[k, c], nk, pre, post)
             count *= nck
         pre *= nk
     return count
@@ -657,7 +660,7 @@ def _taylor_bound(c, e, t, sizes, W, Wd, F3, F33, I3):
 
 
 @njit(cache=True, nogil=True)
-def _refine(b, err, level_err, tol, upper, argmin, max_depth, max_iter, S, nchildren, sizes, fdim, cmaps, ctrl,
+def _refine(b, err, level_err, tol, upper, argmin, max_depth, max_iter, S, Snz, nchildren, sizes, fdim, cmaps, ctrl,
             vidx, bc, bmap, blow, bdepth, kids, work, pmap, cmap, tri, taylor, TW, TWd, tloc, TF3, TF33, TI3):
     """Best-first branch-and-bound of one cell from its root coefficients b.
 
@@ -722,7 +725,7 @@ def _refine(b, err, level_err, tol, upper, argmin, max_depth, max_iter, S, nchil
         for i in range(3):
             for j in range(4):
                 pmap[i, j] = bmap[bi, i, j]
-        count = _children(bc[bi], kids, work, S, nchildren, sizes, fdim, tri)
+        count = _children(bc[bi], kids, work, S, Snz, nchildren, sizes, fdim, tri)
         live -= 1  # the parent's slot gets the last live box
         if bi != live:
             for i in range(nb):
@@ -1051,8 +1054,8 @@ def _polish(b, x0, Mptr, Midx, Mval, exps, G, h, iterations, out, c, pw, Q, Z, H
 
 @njit(cache=True, nogil=True)
 def run_chunk(points, conn, ids, start, stop, cptr, cidx_, cval, col_a, col_b, col_w, col_off, xp, xi, xj, xw, dp,
-               di, dj, dw, consts, sizes, S, nchildren, cmaps, ctrl, vidx, cidx, Mptr, Midx, Mval, exps, G, h, fdim,
-               fslot, fexp, fcoef, nctrl, nx, rtol, flat_rtol, max_depth, max_iter, polish_iter, cap,
+               di, dj, dw, consts, sizes, S, Snz, nchildren, cmaps, ctrl, vidx, cidx, Mptr, Midx, Mval, exps, G, h,
+               fdim, fslot, fexp, fcoef, nctrl, nx, rtol, flat_rtol, max_depth, max_iter, polish_iter, cap,
                o_lower, o_value, o_argmin, o_err, o_scale, o_corner, o_depth, o_closed, o_flat, o_k, o_boxes,
                o_lowroot, o_size):
     """The kernel on the cells ids[start:stop] (outputs at the same positions), with scratch of its own."""
@@ -1174,7 +1177,7 @@ def run_chunk(points, conn, ids, start, stop, cptr, cidx_, cval, col_a, col_b, c
             level_err = consts[2] * U * scale + consts[3] * ETA
             for a in range(3):
                 x[a] = argmin[a]
-            lower, upper, depth, closed, boxes = _refine(b, err, level_err, tol, value, x, max_depth, max_iter, S,
+            lower, upper, depth, closed, boxes = _refine(b, err, level_err, tol, value, x, max_depth, max_iter, S, Snz,
                                                          nchildren, sizes, fdim, cmaps, ctrl, vidx, bc, bmap, blow,
                                                          bdepth, kids, work, pmap, cmap, tri, line_only, TW, TWd,
                                                          tloc, TF3, TF33, TI3)

@@ -182,6 +182,9 @@ class Tables:
         self.consts = np.array([c_rel, c_abs, level_rel, level_abs, eval_rel, eval_abs, float(gid)])
         self.sizes = sp.sizes.astype(np.int64)
         self.S = np.ascontiguousarray(sp.S)
+        # the child matrices' nonzero columns by row (25-37% of a simplex factor's entries): Snz[k, c, r, 0] of
+        # them, in Snz[k, c, r, 1:] ascending (the subdivision sums only these: the same numbers)
+        self.Snz = _nonzero_columns(self.S)
         self.nchildren = sp.nchildren.astype(np.int64)
         self.cmaps = np.ascontiguousarray(_composed_child_maps(sp))
         self.ctrl = np.ascontiguousarray(sp.ctrl)
@@ -417,6 +420,16 @@ def write_generated(path=_GEN_FILE) -> str:
     return str(path)
 
 
+def _nonzero_columns(S) -> np.ndarray:
+    """For matrices S (..., n, n): per row the count of nonzero entries, then their columns, ascending."""
+    out = np.zeros(S.shape[:-1] + (S.shape[-1] + 1,), dtype=np.int64)
+    for ix in np.ndindex(*S.shape[:-1]):
+        cols = np.flatnonzero(S[ix] != 0.0)
+        out[ix + (0,)] = cols.size
+        out[ix][1:1 + cols.size] = cols
+    return out
+
+
 def _composed_child_maps(sp) -> np.ndarray:
     """(children, 3, 4): the map of each child of a box (row-major over the factors' child indices)."""
     out = []
@@ -434,9 +447,8 @@ def _composed_child_maps(sp) -> np.ndarray:
 _TABLES = {}
 _TABLE_FILE = Path(__file__).with_name("_tables.npz")
 _TABLE_FIELDS = ("cptr", "cidx_", "cval", "col_a", "col_b", "col_w", "col_off", "xp", "xi", "xj", "xw", "dp", "di",
-                 "dj", "dw", "consts", "sizes", "S", "nchildren", "cmaps", "ctrl", "vidx", "cidx", "M", "Mptr", "Midx",
-                 "Mval", "exps", "G",
-                 "h", "fdim", "fslot", "fexp", "fcoef")
+                 "dj", "dw", "consts", "sizes", "S", "Snz", "nchildren", "cmaps", "ctrl", "vidx", "cidx", "M", "Mptr",
+                 "Midx", "Mval", "exps", "G", "h", "fdim", "fslot", "fexp", "fcoef")
 _TABLE_SCALARS = ("nb", "n_nodes", "nctrl", "nx")
 
 
@@ -557,8 +569,8 @@ def _run_args(points, conn, ids, t, out, start, stop, rtol=1e-9, flat_rtol=1e-12
               polish_iter=30, cap=256):
     """The arguments of the entry point run_chunk, in its order (also used to derive its compiled signature)."""
     return ((points, conn, ids, int(start), int(stop)) + t.formulation_args +
-            (t.sizes, t.S, t.nchildren, t.cmaps, t.ctrl, t.vidx, t.cidx, t.Mptr, t.Midx, t.Mval, t.exps, t.G, t.h,
-             t.fdim, t.fslot, t.fexp, t.fcoef, t.nctrl, t.nx, float(rtol), float(flat_rtol), int(max_depth),
+            (t.sizes, t.S, t.Snz, t.nchildren, t.cmaps, t.ctrl, t.vidx, t.cidx, t.Mptr, t.Midx, t.Mval, t.exps, t.G,
+             t.h, t.fdim, t.fslot, t.fexp, t.fcoef, t.nctrl, t.nx, float(rtol), float(flat_rtol), int(max_depth),
              int(max_iter), int(polish_iter), int(cap), out["lower"], out["value"], out["argmin"], out["err"],
              out["scale"], out["corner"], out["depth"], out["closed"], out["flat"], out["k"], out["boxes"],
              out["lowroot"], out["size"]))
