@@ -360,8 +360,9 @@ def _children(coef, out, work, S, Snz, nchildren, sizes, fdim, tri):
 
     A line factor of degree nk - 1 is halved by de Casteljau at 1/2 (each step averages two numbers: the same
     convex combinations as the factor's child matrices, in as many roundings as the degree), in place: box t's
-    halves go to rows 2t and 2t + 1, boxes taken from the last down (each line is read whole before its halves
-    are written, so row 0 may be its own lower half). Other factors apply their child matrices from a copy."""
+    halves go to rows 2t and 2t + 1, boxes taken from the last down (each slab of lines is read whole into tri, nb
+    numbers, before its halves are written, so row 0 may be its own lower half). Other factors apply their child
+    matrices from a copy."""
     nb = coef.shape[0]
     count = 1
     for i in range(nb):
@@ -394,22 +395,26 @@ def _children(coef, out, work, S, Snz, nchildren, sizes, fdim, tri):
                         out[hi, i_c] = c
             count *= 2
         elif nck > 1 and fdim[k] == 1:
+            # the post lines of a slab side by side (innermost, contiguous), each line's steps in their order;
+            # tri holds the slab (nk rows of post numbers)
             p = nk - 1
             for t in range(count - 1, -1, -1):
                 lo = 2 * t
                 hi = lo + 1
                 for i0 in range(pre):
+                    base = i0 * nk * post
+                    for q in range(nk * post):
+                        tri[q] = out[t, base + q]
                     for j in range(post):
-                        base = i0 * nk * post + j
-                        for r in range(nk):
-                            tri[r] = out[t, base + r * post]
-                        out[lo, base] = tri[0]
-                        out[hi, base + p * post] = tri[p]
-                        for level in range(1, nk):
-                            for r in range(nk - level):
-                                tri[r] = 0.5 * (tri[r] + tri[r + 1])
-                            out[lo, base + level * post] = tri[0]
-                            out[hi, base + (p - level) * post] = tri[nk - level - 1]
+                        out[lo, base + j] = tri[j]
+                        out[hi, base + p * post + j] = tri[p * post + j]
+                    for level in range(1, nk):
+                        for r in range(nk - level):
+                            for j in range(post):
+                                tri[r * post + j] = 0.5 * (tri[r * post + j] + tri[(r + 1) * post + j])
+                        for j in range(post):
+                            out[lo, base + level * post + j] = tri[j]
+                            out[hi, base + (p - level) * post + j] = tri[(nk - level - 1) * post + j]
             count *= 2
         elif nck > 1:
             for t in range(count):
@@ -1098,7 +1103,7 @@ def run_chunk(points, conn, ids, start, stop, cptr, cidx_, cval, col_a, col_b, c
     y3 = np.empty(3)
     st3 = np.empty(3)
     xt = np.empty(3)
-    tri = np.empty(maxn)
+    tri = np.empty(nb)  # the subdivision's scratch: a slab of a line factor's coefficients
     TW = np.zeros((3, maxn))
     TWd = np.zeros(maxn)
     tloc = np.zeros(3)
