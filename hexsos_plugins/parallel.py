@@ -20,7 +20,6 @@ the whole mesh.
 from __future__ import annotations
 
 import multiprocessing
-import os
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 
 from .errors import DependencyError, InvalidInputError
