@@ -3,7 +3,7 @@
     python -m comparison.bench_scale [--n 126] [--jobs 1 2] [--cli] [--dask]
 
 Builds an n^3 structured grid (126^3 = 2,000,376 hexes) with a deterministic perturbation (a smooth
-twist plus noise, so that some hexes need subdivision and a few are invalid), then
+twist plus noise, so that the hexes are not all alike; at the default size every one is valid), then
 
 * in process: ``check`` with ``tracemalloc`` (peak of numpy allocations during the call) and the process's
   peak resident set size, for each ``--jobs``;

@@ -110,7 +110,7 @@ def test_check_output_keeps_everything_and_adds_the_arrays(demo_file, tmp_path, 
     assert "region" in m.cell_data
 
 
-def test_check_uses_every_core_by_default_and_one_with_jobs_1(tmp_path, capsys):
+def test_check_uses_every_core_by_default_and_one_with_jobs_1(tmp_path, capsys, monkeypatch):
     """The command line runs the kernel on every core this process may use unless told otherwise (the same
     verdicts as one thread); where worker processes or a cluster do the work, each runs one thread."""
     import argparse
@@ -121,13 +121,21 @@ def test_check_uses_every_core_by_default_and_one_with_jobs_1(tmp_path, capsys):
     P, H = structured_grid(30)  # 27,000 hexes: several tasks of cells
     path = tmp_path / "grid.vtu"
     meshio.write(path, meshio.Mesh(P, [("hexahedron", H)]))
+    seen = []
+    run_cells = kernel.run_cells
+
+    def spy(*a, **k):  # the kernel's thread setting at each call
+        seen.append(kernel._THREADS)
+        return run_cells(*a, **k)
+
+    monkeypatch.setattr(kernel, "run_cells", spy)
     runs = {}
     for extra in ([], ["--jobs", "1"]):
-        kernel.last_threads = set()
+        seen.clear()
         assert cli.main(["check", str(path), "--json", "--no-progress"] + extra) == 0
-        runs[tuple(extra)] = (json.loads(capsys.readouterr().out), set(kernel.last_threads))
-    (default, threads), (one, none) = runs[()], runs[("--jobs", "1")]
-    assert len(threads) == (kernel.cores() if kernel.cores() > 1 else 0) and none == set()
+        runs[tuple(extra)] = (json.loads(capsys.readouterr().out), set(seen))
+    (default, threads), (one, single) = runs[()], runs[("--jobs", "1")]
+    assert threads == {kernel.cores()} and single == {1}
     assert default["valid"] == one["valid"] == 27000
     assert kernel._THREADS == 1  # restored after the command
     ns = argparse.Namespace
