@@ -511,8 +511,10 @@ def tables(name: str) -> Tables:
 
 
 _THREADS = 1  # threads the kernel may use (set_threads); chunks of _CHUNK cells are spread over them
+_LIGHT_CHUNK = 32768  # cells per task of a pass of a few nanoseconds a cell (the verdicts): ~0.3 ms of work
 _POOL = None
-#: The Python threads that ran the chunks of the last multi-threaded call (for tests and benchmarks).
+#: The Python threads that have run the kernel's chunks since this was last reset to an empty set (for tests and
+#: benchmarks: a light pass's short tasks may all go to one thread, so one call alone proves little).
 last_threads: set = set()
 
 
@@ -531,10 +533,11 @@ def set_threads(n: int) -> int:
     return old
 
 
-def _spread(fn, n_ids, args_of):
-    """fn(*args_of(start, stop)) over chunks of cells: inline for one thread or a small input, else on a pool."""
+def _spread(fn, n_ids, args_of, min_chunk=_CHUNK):
+    """fn(*args_of(start, stop)) over chunks of cells: inline for one thread or a small input, else on a pool,
+    each task at least ``min_chunk`` cells (more for a light pass, whose cells take nanoseconds)."""
     global _POOL, last_threads
-    if _THREADS <= 1 or n_ids <= _CHUNK:
+    if _THREADS <= 1 or n_ids <= min_chunk:
         fn(*args_of(0, n_ids))
         return
     import threading
@@ -543,7 +546,7 @@ def _spread(fn, n_ids, args_of):
     if _POOL is None or _POOL._max_workers != _THREADS:
         _POOL = ThreadPoolExecutor(max_workers=_THREADS, thread_name_prefix="hexsos-kernel")
     # about four chunks per thread keeps them busy without many tiny tasks
-    size = max(_CHUNK, -(-n_ids // (4 * _THREADS)))
+    size = max(min_chunk, -(-n_ids // (4 * _THREADS)))
     seen = set()
 
     def task(start, stop):
@@ -553,7 +556,7 @@ def _spread(fn, n_ids, args_of):
     futures = [_POOL.submit(task, s, min(s + size, n_ids)) for s in range(0, n_ids, size)]
     for f in futures:
         f.result()
-    last_threads = seen
+    last_threads = last_threads | seen
 
 
 def _run_outputs(m):
@@ -760,7 +763,8 @@ def finish(value, lower, err, corner, scale, k, flat, closed):
     flat = np.ascontiguousarray(flat, dtype=np.bool_)
     closed = np.ascontiguousarray(closed, dtype=np.bool_)
     outs = _finish_outputs(value.shape[0])
-    _spread(_impl.finish_chunk, value.shape[0], lambda a, b: _finish_args(*arrays, k, flat, closed, *outs, a, b))
+    _spread(_impl.finish_chunk, value.shape[0], lambda a, b: _finish_args(*arrays, k, flat, closed, *outs, a, b),
+            min_chunk=_LIGHT_CHUNK)
     return outs
 
 
