@@ -477,7 +477,8 @@ def check_model(*, method: str = "auto", relaxation: str = "quad2", post_views: 
     from hexsos_plugins.certify import check
 
     hx = model_cells()
-    result = check(hx.points, hx.cells, method=method, relaxation=relaxation, progress=progress)
+    result = check(hx.points, hx.cells, method=method, relaxation=relaxation, progress=progress,
+                   jobs=0)  # every core, as the command line
     result.extra["gmsh"] = hx
     result.extra["gmsh_views"] = _post(result) if post_views else {}
     return result
@@ -539,7 +540,7 @@ def repair_model(*, repair_method: str = "optimize", boundary: str | None = None
     res = repair(points, hx.hexes, cells=cells, method=repair_method, boundary=boundary, min_sj=min_sj,
                  rho=rho, margin=margin, pin_boundary=pin_boundary, max_iter=max_iter, kernel_method=method,
                  relaxation=relaxation, progress=progress, pinned=pinned if pinned.any() else None,
-                 time_limit=time_limit)
+                 time_limit=time_limit, jobs=0)
     new = np.asarray(res.points, dtype=np.float64)
     moved = np.flatnonzero(np.any(new != points, axis=1))
     for i in moved:

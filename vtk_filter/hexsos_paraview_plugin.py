@@ -587,7 +587,8 @@ class HexSOSCheckFilter(_HexSOSBase):
         cells = [(t, c) for t, c, _ in blocks]
         cell_ids = np.concatenate([ids for _, _, ids in blocks])
         self.UpdateProgress(0.0)
-        result = kernel.check(P, cells, method=self._method, relaxation=self._relaxation, progress=self._progress)
+        result = kernel.check(P, cells, method=self._method, relaxation=self._relaxation, progress=self._progress,
+                              jobs=0)  # every core, as the command line
         from hexsos_plugins.kernel import scaled_jacobian
 
         result.extra["scaled_jacobian"] = scaled_jacobian(P, cells)
@@ -792,7 +793,8 @@ class HexSOSRepairFilter(_HexSOSBase):
                         min_sj=self._min_sj or None, feature_angle=self._feature_angle,
                         time_limit=self._time_limit or None, rho=self._rho, margin=self._margin,
                         max_iter=self._max_iterations or None, kernel_method=self._method,
-                        relaxation=self._relaxation, progress=self._progress, callback=self._abort, pinned=pinned)
+                        relaxation=self._relaxation, progress=self._progress, callback=self._abort, pinned=pinned,
+                        jobs=0)
         out.ShallowCopy(inp)
         if is_voxel.any():
             _voxels_as_hexahedra(out, inp, types, cell_ids[is_voxel], H[is_voxel])
