@@ -540,7 +540,7 @@ def repair_model(*, repair_method: str = "optimize", boundary: str | None = None
     res = repair(points, hx.hexes, cells=cells, method=repair_method, boundary=boundary, min_sj=min_sj,
                  rho=rho, margin=margin, pin_boundary=pin_boundary, max_iter=max_iter, kernel_method=method,
                  relaxation=relaxation, progress=progress, pinned=pinned if pinned.any() else None,
-                 time_limit=time_limit, jobs=0)
+                 time_limit=time_limit, jobs=1 if repair_method == "paper" else 0)  # paper: processes
     new = np.asarray(res.points, dtype=np.float64)
     moved = np.flatnonzero(np.any(new != points, axis=1))
     for i in moved:

@@ -77,10 +77,11 @@ def add_run_options(p):
 
 
 def resolve_run_options(args):
-    """The default of --jobs: every core in this process, one thread per worker where processes or a cluster
-    do the work (no oversubscription)."""
+    """The default of --jobs: every core in this process; one where processes or a cluster do the work (one
+    thread per worker, no oversubscription), and for the paper's repair, whose --jobs counts processes."""
     if getattr(args, "jobs", 1) is None:
-        args.jobs = 0 if getattr(args, "processes", 1) == 1 and not getattr(args, "scheduler", None) else 1
+        workers = getattr(args, "processes", 1) != 1 or getattr(args, "scheduler", None)
+        args.jobs = 1 if workers or getattr(args, "method", None) == "paper" else 0
     return args
 
 

@@ -143,6 +143,9 @@ def test_check_uses_every_core_by_default_and_one_with_jobs_1(tmp_path, capsys, 
     assert resolve_run_options(ns(jobs=None, processes=2, scheduler=None)).jobs == 1
     assert resolve_run_options(ns(jobs=None, processes=1, scheduler="tcp://h:8786")).jobs == 1
     assert resolve_run_options(ns(jobs=3, processes=2, scheduler=None)).jobs == 3  # an explicit choice stays
+    # the paper's repair counts processes with --jobs: one by default, the optimizer every core
+    assert resolve_run_options(ns(jobs=None, processes=1, scheduler=None, method="paper")).jobs == 1
+    assert resolve_run_options(ns(jobs=None, processes=1, scheduler=None, method="optimize")).jobs == 0
 
 
 def test_a_just_in_time_compilation_is_announced_and_nothing_else(tmp_path, monkeypatch, capsys):

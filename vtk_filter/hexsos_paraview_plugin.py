@@ -794,7 +794,7 @@ class HexSOSRepairFilter(_HexSOSBase):
                         time_limit=self._time_limit or None, rho=self._rho, margin=self._margin,
                         max_iter=self._max_iterations or None, kernel_method=self._method,
                         relaxation=self._relaxation, progress=self._progress, callback=self._abort, pinned=pinned,
-                        jobs=0)
+                        jobs=1 if self._repair_method == "paper" else 0)  # the paper's: processes, not threads
         out.ShallowCopy(inp)
         if is_voxel.any():
             _voxels_as_hexahedra(out, inp, types, cell_ids[is_voxel], H[is_voxel])
