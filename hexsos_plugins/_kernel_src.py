@@ -1364,7 +1364,10 @@ def det_at_chunk(points, conn, ids, start, stop, dN, out):
 
 @njit(cache=True, nogil=True, inline="always")
 def _world_value(x, k, up, dn, fast, down):
-    """x 2^k and whether it is unrepresentable (world_chunk); up, dn = 2^k, 2^-k when ``fast`` (|k| <= 1022)."""
+    """x 2^k, exact where representable, else the nearest float of the same sign (``down`` false: a value) or
+    the largest float below (``down``: a lower bound), and whether it is unrepresentable (overflow; a value that
+    underflows to 0; a lower bound below the normal range that had to be rounded); up, dn = 2^k, 2^-k when
+    ``fast`` (|k| <= 1022)."""
     if fast:  # a product by a power of two is one correctly rounded operation, as ldexp
         w = x * up
         back = w * dn
@@ -1391,32 +1394,11 @@ def _world_value(x, k, up, dn, fast, down):
 
 
 @njit(cache=True, nogil=True)
-def world_chunk(v, kexp, down, start, stop, out, bad):
-    """out[i] = v[i] 2^(3 kexp[i]) for i in start:stop (out may be v): exact where representable; else the
-    nearest float of the same sign (``down`` false: a value) or the largest float below (``down``: a lower
-    bound), with bad[i] set where the number is not representable (overflow; a value that underflows to 0; a
-    lower bound below the normal range that had to be rounded)."""
-    last = -(1 << 40)
-    up = 1.0
-    dn = 1.0
-    fast = False
-    for i in range(start, stop):
-        k = 3 * kexp[i]
-        if k != last:  # neighbouring cells share their exponent: the powers of two once per run of them
-            last = k
-            fast = -1022 <= k <= 1022
-            if fast:
-                up = math.ldexp(1.0, k)
-                dn = math.ldexp(1.0, -k)
-        out[i], bad[i] = _world_value(v[i], k, up, dn, fast, down)
-
-
-@njit(cache=True, nogil=True)
 def finish_chunk(value, lower, err, corner, scale, kexp, flat, closed, start, stop, status, near, bad):
     """The verdicts of cells start:stop from their brackets (scaled units), then their numbers in world units,
     in place: status 1 where lower > 0, 0 where value + err <= 0, -1 otherwise and where flat; near where
     undecided but not flat with the bracket closed or the value within 64 err of 0 (for the exact decision);
-    value, corner and scale to the nearest float (world_chunk), lower rounded down, bad where value or lower is
+    value, corner and scale to the nearest float (_world_value), lower rounded down, bad where value or lower is
     not representable."""
     last = -(1 << 40)
     up = 1.0
@@ -1434,7 +1416,7 @@ def finish_chunk(value, lower, err, corner, scale, kexp, flat, closed, start, st
         status[i] = st
         near[i] = st == -1 and not flat[i] and (closed[i] or abs(x) <= 64.0 * err[i])
         k = 3 * kexp[i]
-        if k != last:
+        if k != last:  # neighbouring cells share their exponent: the powers of two once per run of them
             last = k
             fast = -1022 <= k <= 1022
             if fast:
@@ -1442,7 +1424,7 @@ def finish_chunk(value, lower, err, corner, scale, kexp, flat, closed, start, st
                 dn = math.ldexp(1.0, -k)
         value[i], b1 = _world_value(x, k, up, dn, fast, False)
         lower[i], b2 = _world_value(lower[i], k, up, dn, fast, True)
-        corner[i], b3 = _world_value(corner[i], k, up, dn, fast, False)
-        scale[i], b4 = _world_value(scale[i], k, up, dn, fast, False)
+        corner[i], _ = _world_value(corner[i], k, up, dn, fast, False)
+        scale[i], _ = _world_value(scale[i], k, up, dn, fast, False)
         bad[i] = b1 or b2
 

@@ -723,25 +723,6 @@ def det_at(points, conn, name, pcoords) -> np.ndarray:
     return out
 
 
-def _world_args(v, k, down, out, bad, start, stop):
-    return (v, k, bool(down), int(start), int(stop), out, bad)
-
-
-def to_world(v, k, *, down: bool, out=None):
-    """Scaled values v (the kernel's units) times 2^(3 k), compiled: exact where representable; else the nearest
-    float of the same sign (``down=False``) or the largest float below (``down=True``). Returns (values,
-    unrepresentable); ``out`` (v itself, say: each value is read before it is written) receives the values
-    instead of a new array. One thread: a product per value (2.5 ms per million) is less than a pool's round
-    trip."""
-    v = np.ascontiguousarray(v, dtype=np.float64)
-    k = np.ascontiguousarray(k, dtype=np.int64)
-    if out is None:
-        out = np.empty_like(v)
-    bad = np.empty(v.shape, dtype=np.bool_)
-    _impl.world_chunk(*_world_args(v, k, down, out, bad, 0, v.size))
-    return out, bad
-
-
 def _finish_outputs(m):
     return np.empty(m, dtype=np.int8), np.empty(m, dtype=np.bool_), np.empty(m, dtype=np.bool_)
 
@@ -752,7 +733,8 @@ def _finish_args(value, lower, err, corner, scale, k, flat, closed, status, near
 
 def finish(value, lower, err, corner, scale, k, flat, closed):
     """The verdicts of cells from run_cells' outputs (scaled units), and their numbers in world units, in place
-    (value, corner and scale as :func:`to_world` with ``down=False``, lower with ``down=True``): returns status
+    (times 2^(3 k): exact where representable, else value, corner and scale to the nearest float of the same
+    sign, lower to the largest float below; see _kernel_src.finish_chunk): returns status
     (1 valid: lower > 0; 0 invalid: value + err <= 0; -1 otherwise and where flat), near (undecided, not flat,
     and the bracket closed or the value within 64 err of 0: for the exact decision) and unrepresentable (value
     or lower). One compiled pass, threaded as the kernel is."""
@@ -785,8 +767,6 @@ def entry_point_arguments() -> dict:
         "polish_many": _polish_args(b, X, t, 30, np.empty((1, 3)), np.empty(1)),
         "scaled_jacobian_chunk": _sj_args(P, conn, ids, "hexahedron", np.empty(1), 0, 1),
         "det_at_chunk": _det_at_args(P, conn, ids, np.zeros((8, 3)), np.empty(1), 0, 1),
-        "world_chunk": _world_args(np.zeros(1), np.zeros(1, dtype=np.int64), True, np.empty(1),
-                                   np.empty(1, dtype=np.bool_), 0, 1),
         "finish_chunk": _finish_args(*(np.zeros(1) for _ in range(5)), np.zeros(1, dtype=np.int64),
                                      np.zeros(1, dtype=np.bool_), np.zeros(1, dtype=np.bool_),
                                      *_finish_outputs(1), 0, 1),
