@@ -10,7 +10,7 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
 def _extensions():
     try:
-        from hexsos_plugins._kernel_build import extension
+        from hexsos_plugins.generate.extension import extension
 
         return [extension()]
     except Exception as exc:  # no compiler, no numba: the kernel is compiled at first use instead

@@ -5,7 +5,7 @@
 
 from __future__ import annotations
 
-from . import _common as C  # first: one BLAS thread per process
+from comparison import common as C  # first: one BLAS thread per process
 
 import argparse  # noqa: E402
 import importlib  # noqa: E402
@@ -16,11 +16,11 @@ import time  # noqa: E402
 import traceback  # noqa: E402
 from pathlib import Path  # noqa: E402
 
-from . import EXPERIMENTS  # noqa: E402
+from comparison import EXPERIMENTS  # noqa: E402
 
 
 def seeds() -> dict:
-    from . import against_gmsh, against_vtk, argmin_locations, sampling
+    from comparison import against_gmsh, against_vtk, argmin_locations, sampling
 
     return {
         "sampling (exp. 1) and recovery (exp. 4)": f"random_hexes(sigma={sampling.SIGMA}, seed={sampling.SEED})",

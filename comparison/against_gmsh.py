@@ -11,7 +11,7 @@ maximum is the minimum of the mirrored hex, negated) against Gmsh's (``minDetJac
 
 from __future__ import annotations
 
-from . import _common as C
+from comparison import common as C
 
 import contextlib  # noqa: E402
 import time  # noqa: E402
@@ -41,7 +41,7 @@ def gmsh_local(el, pcoords) -> np.ndarray:
 def _gmsh_cells(points, cells, name):
     """A Gmsh model (one thread) holding the points and the cells, (cell_type, conn) pairs in VTK node order given
     to Gmsh in its own: yields (gmsh, element tags, each cell's gmsh_factor)."""
-    from hexsos_plugins.elements import ELEMENTS
+    from hexsos_plugins.cells.elements import ELEMENTS
     from hexsos_plugins.examples import gmsh_model
 
     with gmsh_model(name) as gmsh:
@@ -81,7 +81,7 @@ def gmsh_qualities(points, cells, *, repeat: int = 1):
 def gmsh_det_at(points, name, conn, pcoords):
     """Gmsh's own det J (``getJacobian``) of each cell ``conn[i]`` (VTK order) at its point ``pcoords[i]`` (VTK's
     parametric coordinates), in our units (divided by ``gmsh_factor``)."""
-    from hexsos_plugins.elements import ELEMENTS
+    from hexsos_plugins.cells.elements import ELEMENTS
 
     local = gmsh_local(ELEMENTS[name], pcoords)
     with _gmsh_cells(points, [(name, conn)], "det-at") as (gmsh, tags, factors):

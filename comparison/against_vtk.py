@@ -10,7 +10,7 @@ sequence of Figure 1, and, when pyvista is installed, pyvista's ``cell_quality("
 
 from __future__ import annotations
 
-from . import _common as C
+from comparison import common as C
 
 import time  # noqa: E402
 
@@ -66,7 +66,7 @@ def pyvista_jacobian(X) -> float | None:
 
 def twist_sequence(n: int = 91):
     """The hexes of Figure 1 (see :mod:`comparison.figures_1_2`)."""
-    from .figures_1_2 import twist_hex
+    from comparison.figures_1_2 import twist_hex
 
     ang = np.linspace(0.0, np.pi, n)
     return np.stack([twist_hex(a) for a in ang])

@@ -22,7 +22,7 @@ sigma 1.0 (where interior minima are most frequent) adds hexes for that count on
 
 from __future__ import annotations
 
-from . import _common as C
+from comparison import common as C
 
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
@@ -77,7 +77,7 @@ def face_brackets(X, *, max_boxes: int = 64):
     it is subdivided uniformly into about ``max_boxes`` boxes. Returns (lower, upper), each (M, 6): ``lower``
     a proven lower bound, ``upper`` a value of det J on the face.
     """
-    from hexsos_plugins.hexahedron import det_bernstein
+    from hexsos_plugins.kernel import det_bernstein
 
     X = np.asarray(X, float).reshape(-1, 8, 3)
     M = X.shape[0]

@@ -79,7 +79,7 @@ def stages(points, hexes, repeat):
 
 
 def compare(label, points, hexes, repeat):
-    from hexsos_plugins.certify import _threads
+    from hexsos_plugins.kernel import threads_for
 
     m = len(hexes)
     g, tg = gmsh_min_det(points, hexes, repeat=repeat)
@@ -96,7 +96,7 @@ def compare(label, points, hexes, repeat):
           f"{np.array_equal(r1.status, r2.status) and np.array_equal(r1.min_det, r2.min_det)}")
     print(f"our min - Gmsh's bound, relative to scale: [{gap.min():.1e}, {gap.max():.1e}] (Gmsh stops within 1e-3); "
           f"bracket width (gap/scale) max {np.max(r1.gap / r1.scale):.1e}; settled by {r1.to_dict()['settled_by']}")
-    with _threads(1):
+    with threads_for(1):
         st, nref, boxes = stages(points, hexes, repeat)
     tot = st["+ subdivision"]
     parts = {"coefficients": st["coefficients"], "root bounds": st["root bounds"] - st["coefficients"],
@@ -252,7 +252,8 @@ def main(argv=None):
     ap.add_argument("--skip", nargs="*", default=[], choices=ROWS, help="rows to leave out")
     args = ap.parse_args(argv)
 
-    from hexsos_plugins import examples, kernel
+    from hexsos_plugins import examples
+    from hexsos_plugins import kernel
 
     print(f"kernel: {kernel.implementation()}; Gmsh NumThreads 1; this machine: {os.cpu_count()} CPUs")
     if "random" not in args.skip:

@@ -72,7 +72,7 @@ def _plain_meshio(path):
 
 
 def time_readers(path, fmt, repeat):
-    from hexsos_plugins.readers import readers_for
+    from hexsos_plugins.io.readers import readers_for
 
     rows = [("meshio (plain)", _plain_meshio)]
     rows += [(who, fn) for who, fn in readers_for(path, fmt) if who != "meshio"]
@@ -99,7 +99,7 @@ t = time.perf_counter()
 if who == "meshio (plain)":
     import meshio; meshio.read(path)
 else:
-    from hexsos_plugins.readers import readers_for
+    from hexsos_plugins.io.readers import readers_for
     dict(readers_for(path, fmt))[who](Path(path))
 print(time.perf_counter() - t)
 """

@@ -32,9 +32,10 @@ import numpy as np
 
 from hexsos_plugins import check, repair
 from hexsos_plugins.examples import gmsh_mesh, gmsh_model
-from hexsos_plugins.fidelity import boundary_fidelity, boundary_quads
-from hexsos_plugins.meshrepair import boundary_vertex_mask, check_cells, hex_edge_length
-from hexsos_plugins.quality import scaled_jacobian, summary
+from hexsos_plugins.meshrepair.fidelity import boundary_fidelity, boundary_quads
+from hexsos_plugins.meshrepair import check_cells
+from hexsos_plugins.meshrepair.paper import boundary_vertex_mask, hex_edge_length
+from hexsos_plugins.cells.quality import scaled_jacobian, summary
 
 BUNNY = os.path.normpath(os.path.join(os.path.dirname(__file__), "..", "..", "shared", "data", "bunny.vtk"))
 
@@ -229,8 +230,8 @@ def _print_table1(rows):
 def samples(quick=False):
     """Stage 1's sample points, measured on stress tests: untangled?, stage-1 iterations and seconds."""
     from comparison.stress import graded_solid, stress, single_fold
-    from hexsos_plugins import optimize as opt
-    from hexsos_plugins.meshrepair import _cell_size
+    from hexsos_plugins.meshrepair import optimize as opt
+    from hexsos_plugins.meshrepair.driver import cell_size
 
     cases = []
     for n, frac in (((6, 0.9),) if quick else ((8, 0.9), (12, 0.8))):
@@ -243,11 +244,11 @@ def samples(quick=False):
     for name, P, H in cases:
         for mode, label in (("none", "corners only"), ("flagged", "corners + 27 coefficients where needed"),
                             ("all", "corners + 27 coefficients of every hex")):
-            prob = opt.Problem(P, [("hexahedron", H)], [_cell_size(P, "hexahedron", H)], np.ones(len(P), bool))
+            prob = opt.Problem(P, [("hexahedron", H)], [cell_size(P, "hexahedron", H)], np.ones(len(P), bool))
             t0 = time.perf_counter()
             info = opt.untangle(prob, bernstein=mode)
             t = time.perf_counter() - t0
-            full = opt.Problem(prob.V, [("hexahedron", H)], [_cell_size(P, "hexahedron", H)], np.ones(len(P), bool))
+            full = opt.Problem(prob.V, [("hexahedron", H)], [cell_size(P, "hexahedron", H)], np.ones(len(P), bool))
             ok = full.feasible_valid(prob.V)
             cert = bool((check(prob.V, H).status == 1).all())
             print(f"| {name} | {label} | {'yes' if ok else 'no'} (kernel: {'all valid' if cert else 'not all valid'})"

@@ -24,7 +24,7 @@ hexahedron27):
 
 from __future__ import annotations
 
-from . import _common as C
+from comparison import common as C
 
 import time  # noqa: E402
 
@@ -46,7 +46,7 @@ SIGMA = {"linear": 0.15, "quadratic": 0.05}  # (quadratic cells have 2-3x more n
 
 def random_cells(name, m, *, sigma=None, seed=SEED):
     """m copies of the type's reference cell with Gaussian noise on every node: points, connectivity."""
-    from .vtk_sampling import reference_nodes
+    from comparison.vtk_sampling import reference_nodes
 
     if sigma is None:
         sigma = SIGMA["quadratic" if name in QUADRATIC else "linear"]
@@ -58,7 +58,7 @@ def random_cells(name, m, *, sigma=None, seed=SEED):
 
 def gmsh_cells(name, n, *, seed=SEED):
     """A Gmsh-made mesh of cells of the type (see the module docstring), interior nodes moved: points, conn."""
-    from hexsos_plugins.elements import ELEMENTS
+    from hexsos_plugins.cells.elements import ELEMENTS
     from hexsos_plugins.examples import gmsh_model
 
     el = ELEMENTS[name]
@@ -109,7 +109,7 @@ def gmsh_cells(name, n, *, seed=SEED):
 def _raise_pyramids(P, conn, name):
     """Linear pyramids raised to order 2 by Gmsh (``setOrder`` on a discrete volume: straight edges): points, conn
     (VTK order; pyramid14: Gmsh's)."""
-    from hexsos_plugins.elements import ELEMENTS
+    from hexsos_plugins.cells.elements import ELEMENTS
     from hexsos_plugins.examples import gmsh_model
 
     el = ELEMENTS[name]
@@ -129,16 +129,16 @@ def _raise_pyramids(P, conn, name):
 
 def _compare(name, P, conn, repeat, sampled, label):
     from hexsos_plugins import check
-    from hexsos_plugins.certify import _threads
+    from hexsos_plugins.kernel import threads_for
 
-    from .against_gmsh import gmsh_det_at, gmsh_qualities
-    from .vtk_sampling import ROUNDING, dense_min
+    from comparison.against_gmsh import gmsh_det_at, gmsh_qualities
+    from comparison.vtk_sampling import ROUNDING, dense_min
 
     C.log(f"{NAME}: {name} {label}: Gmsh minDetJac on {len(conn):,} cells")
     gmin, _, tg = gmsh_qualities(P, [(name, conn)], repeat=repeat)
     C.log(f"{NAME}: {name} {label}: hexsos check")
     best, r = np.inf, None
-    with _threads(1):
+    with threads_for(1):
         for _ in range(repeat):
             t = time.perf_counter()
             r = check(P, [(name, conn)])

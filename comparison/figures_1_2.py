@@ -19,7 +19,7 @@ cube, single-vertex moves never give inside-only invalidity (measured), hence th
 
 from __future__ import annotations
 
-from . import _common as C
+from comparison import common as C
 
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
@@ -48,7 +48,7 @@ def ball_start_hex() -> np.ndarray:
 
 def _det_slice(X, w, n=60):
     """det J of one hex on the parameter slice w = const, (n, n) over (u, v), from the kernel."""
-    from hexsos_plugins.hexahedron import det_at
+    from hexsos_plugins.cells.hexahedron import det_at
 
     t = np.linspace(0, 1, n)
     U, V = np.meshgrid(t, t, indexing="ij")

@@ -14,7 +14,7 @@ beside ours.
 
 from __future__ import annotations
 
-from . import _common as C
+from comparison import common as C
 
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
@@ -59,7 +59,7 @@ def find_meshes(paths=None):
 def _untangler():
     """``bench_repair.gmsh_untangle`` (another engineer's code), or None with the reason."""
     try:
-        from .bench_repair import gmsh_untangle
+        from comparison.bench_repair import gmsh_untangle
 
         return gmsh_untangle, None
     except Exception as exc:  # noqa: BLE001 - reported in the table
@@ -69,8 +69,8 @@ def _untangler():
 def mesh_counts(name, P, H):
     from hexsos_plugins import check
 
-    from .against_gmsh import gmsh_qualities
-    from .against_vtk import vtk_jacobian
+    from comparison.against_gmsh import gmsh_qualities
+    from comparison.against_vtk import vtk_jacobian
 
     r = check(P, H)
     s = {"mesh": name, "hexes": len(H), "points": len(P), **r.counts(),

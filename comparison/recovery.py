@@ -15,14 +15,14 @@ reused), and the same for ``quad2``, whose 10x10 moment matrix is over the same 
 
 from __future__ import annotations
 
-from . import _common as C
+from comparison import common as C
 
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from .sampling import SEED, SIGMA, sample_hexes  # noqa: E402
+from comparison.sampling import SEED, SIGMA, sample_hexes  # noqa: E402
 
 NAME = "recovery"
 TITLE = "4. Exact recovery (Figure 5)"
@@ -38,8 +38,9 @@ RANK_TOL = 1e-3
 
 def _solve_chunk(X, degree):
     """Worker: the paper's relaxation of the given multiplier degree on hexes X (m, 8, 3)."""
-    from hexsos_plugins.hexahedron import bernstein_to_monomial, det_bernstein
-    from hexsos_plugins.sos import SOSSolver, paper_relaxation
+    from hexsos_plugins.cells.hexahedron import bernstein_to_monomial
+    from hexsos_plugins.kernel import det_bernstein
+    from hexsos_plugins.kernel.sos import SOSSolver, paper_relaxation
 
     B, _ = det_bernstein(X)
     Cm = bernstein_to_monomial(B)

@@ -274,7 +274,7 @@ def _seed_files(d):
     return paths
 
 
-def _mutate(data: bytes, rng) -> bytes:
+def mutate(data: bytes, rng) -> bytes:
     """A few random edits: byte flips, truncation, insertion, deletion, digit swaps."""
     b = bytearray(data)
     for _ in range(int(rng.integers(1, 6))):
@@ -305,7 +305,7 @@ def fuzz(seconds: float, directory: str, *, seed: int = 1234) -> dict:
     while time.monotonic() < deadline:
         src = seeds[stats["files"] % len(seeds)]
         with open(src, "rb") as f:
-            data = _mutate(f.read(), rng)
+            data = mutate(f.read(), rng)
         dst = os.path.join(directory, "fuzz" + os.path.splitext(src)[1])
         with open(dst, "wb") as f:
             f.write(data)

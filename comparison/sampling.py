@@ -22,7 +22,7 @@ directly from the Jacobian as a check of the interpolation (``interp_err``).
 
 from __future__ import annotations
 
-from . import _common as C  # first: sets BLAS threads before numpy is imported
+from comparison import common as C  # first: sets BLAS threads before numpy is imported
 
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
@@ -155,7 +155,7 @@ def sample_hexes(m: int) -> np.ndarray:
 
 
 def run(quick: bool = False, out="comparison-out", jobs: int = 1, *, size: str | None = None, hexes: int | None = None):
-    """Run experiment 1; returns the result dict (see :mod:`comparison._common`)."""
+    """Run experiment 1; returns the result dict (see :mod:`comparison.common`)."""
     t0 = time.perf_counter()
     size = C.resolve_size(quick, size)
     cfg = dict(SIZES[size])

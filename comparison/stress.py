@@ -49,7 +49,7 @@ def graded_solid(n: int = 8, *, progression: float = 1.15):
 
 
 def _interior(H, N, cells=()):
-    from hexsos_plugins.boundary import boundary_faces
+    from hexsos_plugins.meshrepair.boundary import boundary_faces
 
     tris, quads = boundary_faces([("hexahedron", H)] + list(cells))
     b = np.zeros(N, dtype=bool)
@@ -60,7 +60,7 @@ def _interior(H, N, cells=()):
 
 def stress(P, H, *, frac: float = 0.8, amp: float = 1.0, seed: int = 0):
     """A copy of P with ``frac`` of the interior vertices moved by up to ``amp`` x the local edge length."""
-    from hexsos_plugins.meshrepair import hex_edge_length
+    from hexsos_plugins.meshrepair.paper import hex_edge_length
 
     P = np.array(P, dtype=np.float64, copy=True)
     rng = np.random.default_rng(seed)
@@ -84,7 +84,7 @@ def single_fold(n: int = 5, *, seed: int = 0):
     """
     from hexsos_plugins import check
     from hexsos_plugins.examples import gmsh_mesh
-    from hexsos_plugins.fidelity import boundary_quads
+    from hexsos_plugins.meshrepair.fidelity import boundary_quads
 
     P, H = gmsh_mesh("box", n)
     P = P.copy()

@@ -6,7 +6,7 @@ rounds of zooming around the best points. Used by the comparison harness (experi
 
 The quadratic pyramids are sampled on *Gmsh's* shape functions (getBasisFunctions "GradLagrange"): VTK has no
 14-node pyramid, and its 13-node one interpolates differently inside the cell than the pyramid space hexsos
-follows (Gmsh's; see hexsos_plugins.elements). Gmsh's reference pyramid (u, v, w), base [-1, 1]^2, is reached
+follows (Gmsh's; see hexsos_plugins.cells.elements). Gmsh's reference pyramid (u, v, w), base [-1, 1]^2, is reached
 from VTK's collapsed cube by u = (2 r - 1)(1 - t), v = (2 s - 1)(1 - t), w = t; the measure's columns are
 2 x_u, 2 x_v and x_u + x_v + x_w. They are sampled up to t = 1 - 1e-10: the measure of a quadratic pyramid has a
 different limit along every direction into the apex.

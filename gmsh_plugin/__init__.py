@@ -8,7 +8,7 @@
 Importing this package does not import ``gmsh``: that happens on the first call.
 """
 
-from .model import (
+from gmsh_plugin.model import (
     HEX8,
     VIEW_ARGMIN,
     VIEW_DISPLACEMENT,
@@ -30,7 +30,7 @@ from .model import (
     world_points,
     write_views,
 )
-from .panel import ACTION_CHECK, ACTION_REPAIR, define_parameters, event_loop, handle_action
+from gmsh_plugin.panel import ACTION_CHECK, ACTION_REPAIR, define_parameters, event_loop, handle_action
 
 __all__ = [
     "check_model",

@@ -87,7 +87,7 @@ def _open(gmsh, args):
     if args.demo:
         from hexsos_plugins.examples import demo_mesh
 
-        from .model import add_hex_mesh
+        from gmsh_plugin.model import add_hex_mesh
 
         points, hexes, _ = demo_mesh()
         add_hex_mesh(points, hexes, model="hexsos-demo")
@@ -116,7 +116,7 @@ def _print_result(label, result, out=None):
 
 
 def _headless(gmsh, args, label) -> int:
-    from .model import check_model, repair_model, write_views
+    from gmsh_plugin.model import check_model, repair_model, write_views
 
     if args.screenshot:
         sys.stderr.write(f"{PROG}: warning: no display: no screenshot\n")
@@ -143,11 +143,13 @@ def _headless(gmsh, args, label) -> int:
 
 
 def _gui(gmsh, args, label) -> int:
-    from . import panel
-    from .model import model_cells, write_views
+    from gmsh_plugin import panel
+    from gmsh_plugin.model import model_cells, write_views
 
     margin = "auto" if args.margin is None else repr(args.margin)
-    boundary = args.boundary or ("slide" if args.repair_method == "optimize" else "free")
+    from hexsos_plugins.meshrepair import default_boundary
+
+    boundary = args.boundary or default_boundary(args.repair_method)
     panel.define_parameters(method=args.method, relaxation=args.relaxation, rho=args.rho, margin=margin,
                             pin=int(args.pin_boundary), max_iter=args.max_iter, repair_method=args.repair_method,
                             boundary=boundary, min_sj="auto" if args.min_sj is None else repr(args.min_sj))
@@ -213,7 +215,7 @@ def run(args, prog: str = PROG) -> int:
         label = _open(gmsh, args) if (args.mesh or args.demo) else "(no mesh)"
         if not headless:
             try:
-                from .panel import widen_menu
+                from gmsh_plugin.panel import widen_menu
 
                 widen_menu()
                 gmsh.fltk.initialize()

@@ -12,14 +12,14 @@ For people who script Gmsh::
     if result.counts()["invalid"]:
         repair_model(margin=1e-3)   # moves the nodes of the Gmsh model, re-checks, re-posts the views
 
-Every 3-D element type of :mod:`hexsos_plugins.elements` is checked: tetrahedra, pyramids, prisms and
+Every 3-D element type of :mod:`hexsos_plugins.cells.elements` is checked: tetrahedra, pyramids, prisms and
 hexahedra, linear and quadratic (Gmsh types 4, 11, 7, 19, 14, 6, 18, 13, 5, 17, 12), their nodes reordered
 from Gmsh's numbering to VTK's (the 14-node pyramid, which VTK lacks, keeps Gmsh's); other 3-D types (orders
 above 2) are counted as not checked. Every entity of the current model is read; node tags may be any positive integers (sparse,
 unsorted): they are mapped to a dense array and back.
 
 det J is measured on VTK's reference elements (hexahedra: the parameter cube [0, 1]^3): Gmsh's own
-``minDetJac`` is this module's value times :attr:`hexsos_plugins.elements.Element.gmsh_factor` (1/8 for
+``minDetJac`` is this module's value times :attr:`hexsos_plugins.cells.elements.Element.gmsh_factor` (1/8 for
 hexahedra, whose Gmsh reference cube is [-1, 1]^3; 1/2 for prisms; 1 for tetrahedra; 1/4 for pyramids).
 
 Views posted (re-posted in place on every check, so repeated checks do not pile up views):
@@ -78,7 +78,7 @@ class GmshModelError(HexsosError, RuntimeError):
     """The Gmsh session cannot be used as asked (not initialized, inconsistent mesh, no result to show)."""
 
 
-def _gmsh():
+def gmsh_api():
     try:
         import gmsh
     except ImportError as exc:  # pragma: no cover - depends on the environment
@@ -152,7 +152,7 @@ GmshHexes = GmshCells
 def model_cells() -> GmshCells:
     """Read every 3-D element of every entity of the current Gmsh model.
 
-    Every type of :data:`hexsos_plugins.elements.ELEMENTS` (tetrahedra, pyramids, prisms, hexahedra, linear
+    Every type of :data:`hexsos_plugins.cells.elements.ELEMENTS` (tetrahedra, pyramids, prisms, hexahedra, linear
     and quadratic, complete and incomplete) is read with its nodes reordered from Gmsh's numbering to VTK's;
     3-D elements of other types (orders above 2) are counted in ``skipped``.
 
@@ -163,10 +163,10 @@ def model_cells() -> GmshCells:
     GmshModelError
         Gmsh is not initialized, or an element refers to a node the model does not hold.
     """
-    from hexsos_plugins.elements import ELEMENTS
+    from hexsos_plugins.cells.elements import ELEMENTS
     from hexsos_plugins.errors import NoCellsError
 
-    gmsh = _gmsh()
+    gmsh = gmsh_api()
     by_gmsh = {el.gmsh_type: el for el in ELEMENTS.values()}
     raw, skipped, skipped_raw = [], {}, []
     for etype in gmsh.model.mesh.getElementTypes(3):
@@ -245,7 +245,7 @@ def add_hex_mesh(points, hexes, *, model: str | None = "hexsos", node_tags=None,
     """
     from hexsos_plugins.certify import validate_arrays
 
-    gmsh = _gmsh()
+    gmsh = gmsh_api()
     P, H = validate_arrays(points, hexes)
     ntags = np.arange(1, P.shape[0] + 1, dtype=np.uint64) if node_tags is None else np.asarray(node_tags, np.uint64)
     if ntags.shape != (P.shape[0],) or np.unique(ntags).size != ntags.size or (ntags == 0).any():
@@ -265,7 +265,7 @@ def world_points(points, cells, pcoords) -> np.ndarray:
     ``cells`` is (K, 8) hexahedra (VTK order, parameter cube [0, 1]^3) or a list of (type, conn) blocks whose
     rows, concatenated, are the K cells the points belong to.
     """
-    from hexsos_plugins.elements import world_points as _world
+    from hexsos_plugins.cells.elements import world_points as _world
 
     return _world(np.asarray(points, dtype=np.float64), _as_cells(cells), np.asarray(pcoords, dtype=np.float64))
 
@@ -280,7 +280,7 @@ def _as_cells(cells):
 
 def hexsos_views() -> dict:
     """Tags of the hexsos views in the session, by key of :data:`VIEW_NAMES` (absent keys: no such view)."""
-    gmsh = _gmsh()
+    gmsh = gmsh_api()
     found = {}
     for tag in gmsh.view.getTags():
         name = gmsh.option.getString(f"View[{gmsh.view.getIndex(tag)}].Name")
@@ -292,7 +292,7 @@ def hexsos_views() -> dict:
 
 def remove_views(keys=None) -> None:
     """Remove the hexsos views (all of them, or those of the given keys of :data:`VIEW_NAMES`)."""
-    gmsh = _gmsh()
+    gmsh = gmsh_api()
     for key, tag in hexsos_views().items():
         if keys is None or key in keys:
             gmsh.view.remove(tag)
@@ -300,7 +300,7 @@ def remove_views(keys=None) -> None:
 
 def _new_view(key: str, existing: dict) -> int:
     """A fresh view for ``key``, taking over the tag of the previous one (so tags stay stable)."""
-    gmsh = _gmsh()
+    gmsh = gmsh_api()
     old = existing.get(key)
     if old is not None:
         gmsh.view.remove(old)
@@ -320,7 +320,7 @@ def _gmsh_data(result, element_tags, points, cells, model):
             raise GmshModelError("post_views: pass points and cells (needed to place the argmin points)")
         points, cells = info.points, info.cells
     if model is None:
-        model = info.model if info is not None else _gmsh().model.getCurrent()
+        model = info.model if info is not None else gmsh_api().model.getCurrent()
     element_tags = np.asarray(element_tags, dtype=np.uint64)
     if element_tags.shape != (len(result),):
         raise GmshModelError(f"post_views: expected {len(result)} element tags (one per checked element), "
@@ -351,7 +351,7 @@ def post_views(result, element_tags=None, points=None, cells=None, *, model: str
         ``"argmin"`` (list data: one scalar point per invalid element at the world position of its argmin,
         valued by its min det J).
     """
-    gmsh = _gmsh()
+    gmsh = gmsh_api()
     element_tags, points, cells, model = _gmsh_data(result, element_tags, points, cells, model)
     existing = hexsos_views()
     views = {}
@@ -394,7 +394,7 @@ def post_views(result, element_tags=None, points=None, cells=None, *, model: str
 
 def post_displacement(node_tags, displacement, *, model: str | None = None) -> int:
     """Post a NodeData vector view ``"hexsos: displacement"`` (how far each node moved); returns its tag."""
-    gmsh = _gmsh()
+    gmsh = gmsh_api()
     node_tags = np.asarray(node_tags, dtype=np.uint64)
     d = np.ascontiguousarray(displacement, dtype=np.float64).reshape(-1, 3)
     if d.shape[0] != node_tags.size:
@@ -418,7 +418,7 @@ def write_views(path: str) -> list:
 
     from hexsos_plugins.errors import MeshWriteError
 
-    gmsh = _gmsh()
+    gmsh = gmsh_api()
     views = hexsos_views()
     if not views:
         raise GmshModelError("no hexsos views to write: run a check first")
@@ -478,7 +478,7 @@ def check_model(*, method: str = "auto", relaxation: str = "quad2", post_views: 
 
     hx = model_cells()
     result = check(hx.points, hx.cells, method=method, relaxation=relaxation, progress=progress,
-                   jobs=0)  # every core, as the command line
+                   jobs=0, quality=True)  # every core, as the command line; the scaled Jacobian too
     result.extra["gmsh"] = hx
     result.extra["gmsh_views"] = _post(result) if post_views else {}
     return result
@@ -525,7 +525,7 @@ def repair_model(*, repair_method: str = "optimize", boundary: str | None = None
     """
     from hexsos_plugins import repair
 
-    gmsh = _gmsh()
+    gmsh = gmsh_api()
     hx = model_cells()
     points, tags = hx.points, hx.node_tags
     cells = [(t, c) for t, c in hx.cells if t != "hexahedron"]

@@ -32,7 +32,7 @@ import numpy as np
 
 from hexsos_plugins.errors import HexsosError, InvalidInputError
 
-from .model import _gmsh, check_model, repair_model
+from gmsh_plugin.model import gmsh_api, check_model, repair_model
 
 __all__ = [
     "ACTION_CHECK",
@@ -158,20 +158,20 @@ def _parameters(method="auto", relaxation="quad2", rho=200.0, margin="auto", pin
 def define_parameters(**defaults) -> None:
     """Create (or reset) the panel's ONELAB parameters. Keyword arguments override the parameter defaults:
     ``method``, ``relaxation``, ``rho``, ``margin`` (``"auto"`` or a number), ``pin`` (0/1), ``max_iter``."""
-    gmsh = _gmsh()
+    gmsh = gmsh_api()
     if "margin" in defaults and not isinstance(defaults["margin"], str):
         defaults["margin"] = "auto" if defaults["margin"] is None else repr(float(defaults["margin"]))
     gmsh.onelab.set(json.dumps({"onelab": {"name": "hexsos", "parameters": _parameters(**defaults)}}))
 
 
 def _string(name, default):
-    gmsh = _gmsh()
+    gmsh = gmsh_api()
     v = gmsh.onelab.getString(name)
     return v[0] if len(v) else default
 
 
 def _number(name, default):
-    gmsh = _gmsh()
+    gmsh = gmsh_api()
     v = gmsh.onelab.getNumber(name)
     return float(v[0]) if len(v) else default
 
@@ -221,7 +221,7 @@ def read_parameters() -> dict:
 
 
 def _highlight(name, colour):
-    gmsh = _gmsh()
+    gmsh = gmsh_api()
     # ONELAB merges a parameter set again: only the given fields change
     p = json.loads(gmsh.onelab.get(name))  # one parameter comes back as a bare object
     if "onelab" in p:
@@ -231,13 +231,10 @@ def _highlight(name, colour):
 
 
 def _show_result(result, message: str, *, min_sj=None) -> None:
-    gmsh = _gmsh()
+    gmsh = gmsh_api()
     if min_sj is None:
-        from hexsos_plugins.kernel import scaled_jacobian
-
-        hx0 = result.extra.get("gmsh")
-        sj = scaled_jacobian(hx0.points, hx0.cells) if hx0 is not None else np.full(1, np.nan)
-        min_sj = float(np.nanmin(sj)) if np.isfinite(sj).any() else float("nan")
+        q = result.quality()
+        min_sj = float("nan") if q is None or q["min"] is None else q["min"]
     gmsh.onelab.setNumber(R_MIN_SJ, [float(min_sj)])
     other = sum(c["cells"] - c["valid"] for t, c in result.by_type().items() if t != "hexahedron")
     gmsh.onelab.setNumber(R_OTHER, [int(other)])
@@ -256,7 +253,7 @@ def _show_result(result, message: str, *, min_sj=None) -> None:
 
 
 def _fail(message: str) -> None:
-    gmsh = _gmsh()
+    gmsh = gmsh_api()
     gmsh.onelab.setString(R_MESSAGE, [f"error: {message}"])
     gmsh.logger.write(f"hexsos: {message}", "warning")  # "error" makes the API raise
 
@@ -294,9 +291,9 @@ def run_repair(**kwargs):
     re-check, re-post the views and show the counts. Returns the RepairResult."""
     p = read_parameters()
     p.update(kwargs)
-    boundary = "fixed" if p["pin_boundary"] else p["boundary"]
-    if p["repair_method"] == "paper" and boundary == "slide":
-        boundary = "free"
+    from hexsos_plugins.meshrepair import door_boundary
+
+    boundary = door_boundary(p["boundary"], p["repair_method"], p["pin_boundary"])
     max_iter = p["max_iter"] if p["repair_method"] == "paper" or p["max_iter"] < 100 else None
     res = repair_model(repair_method=p["repair_method"], boundary=boundary, min_sj=p["min_sj"], rho=p["rho"],
                        margin=p["margin"], max_iter=max_iter, method=p["method"], relaxation=p["relaxation"])
@@ -318,7 +315,7 @@ def run_repair(**kwargs):
 
 def gui_available() -> bool:
     """True when the Gmsh GUI is up (``gmsh.fltk`` raises without a display: that is False)."""
-    gmsh = _gmsh()
+    gmsh = gmsh_api()
     try:
         return bool(gmsh.fltk.isAvailable())
     except Exception:
@@ -326,7 +323,7 @@ def gui_available() -> bool:
 
 
 def _refresh():
-    gmsh = _gmsh()
+    gmsh = gmsh_api()
     if gui_available():
         gmsh.fltk.update()
         gmsh.graphics.draw()
@@ -348,7 +345,7 @@ def handle_action(action: str | None = None) -> bool:
         check or repair (no hexahedra, a bad parameter, ...) do not stop the loop: they are shown in the
         panel's Message and Gmsh's message console.
     """
-    gmsh = _gmsh()
+    gmsh = gmsh_api()
     if action is None:
         value = gmsh.onelab.getString("ONELAB/Action")
         action = value[0] if len(value) else ""
@@ -379,7 +376,7 @@ def handle_action(action: str | None = None) -> bool:
 def widen_menu(width: int = 360) -> None:
     """Before ``gmsh.fltk.initialize()``: make the tree wide enough for the panel's labels (Gmsh's default,
     200 pixels, cuts them), widening the window by as much so the graphics keep their size."""
-    gmsh = _gmsh()
+    gmsh = gmsh_api()
     menu = gmsh.option.getNumber("General.MenuWidth")
     if menu < width:
         gmsh.option.setNumber("General.MenuWidth", width)
@@ -406,7 +403,7 @@ def event_loop(*, auto_action: str | None = None, screenshot: str | None = None,
 
     Returns the result of the last check or repair run from the loop, or None.
     """
-    gmsh = _gmsh()
+    gmsh = gmsh_api()
     if not gui_available():
         widen_menu()
         gmsh.fltk.initialize()

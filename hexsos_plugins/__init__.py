@@ -5,38 +5,26 @@ det J over its reference element, where it occurs, and a verdict that is a proof
 -1 undecided); invalid meshes can be repaired with a certificate (Marschner et al., "Hexahedral Mesh Repair via
 Sum-of-Squares Relaxation", SGP 2020).
 
-Conventions: VTK's node orders and parametric coordinates; see :mod:`hexsos_plugins.elements`.
+Conventions: VTK's node orders and parametric coordinates; see :mod:`hexsos_plugins.cells.elements`.
 
 The names below are imported on first use, so ``import hexsos_plugins`` stays cheap (a command that only
 reads a file does not load the solver, the repair or the plotting).
 """
 
 from ._version import __version__
-from .errors import (
-    DependencyError,
-    HexsosError,
-    InvalidInputError,
-    LeftHandedMeshError,
-    MeshFormatError,
-    MeshReadError,
-    MeshWriteError,
-    NoCellsError,
-    NoHexahedraError,
-    RepairError,
-    SolverError,
-    UnsupportedFormatError,
-)
+from . import errors
+from .errors import *  # noqa: F401,F403 (every error type, named once: errors.__all__)
 
 # name -> module that defines it (imported on first access)
 _LAZY = {
     "check": "certify", "CheckResult": "certify", "METHOD_NAMES": "certify", "STATUS_NAMES": "certify",
     "SOS_STATUS_NAMES": "certify",
     "read": "io", "write": "io",
-    "HexMesh": "mesh", "Mesh": "mesh",
+    "HexMesh": "io.mesh", "Mesh": "io.mesh",
     "repair": "meshrepair", "repair_hex": "meshrepair", "RepairResult": "meshrepair",
     "scaled_jacobian": "kernel",
-    "RELAXATIONS": "sos",
-    "CELL_TYPES": "elements",
+    "RELAXATIONS": "kernel.sos",
+    "CELL_TYPES": "cells",
 }
 
 __all__ = [
@@ -56,19 +44,7 @@ __all__ = [
     "SOS_STATUS_NAMES",
     "RELAXATIONS",
     "CELL_TYPES",
-    "HexsosError",
-    "MeshReadError",
-    "UnsupportedFormatError",
-    "MeshFormatError",
-    "NoHexahedraError",
-    "NoCellsError",
-    "InvalidInputError",
-    "LeftHandedMeshError",
-    "MeshWriteError",
-    "SolverError",
-    "RepairError",
-    "DependencyError",
-]
+] + errors.__all__
 
 
 def __getattr__(name):

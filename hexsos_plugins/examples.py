@@ -10,8 +10,8 @@ import contextlib
 import numpy as np
 
 from .errors import DependencyError, InvalidInputError
-from .hexahedron import CORNERS
-from .mesh import hexes_to_mesh  # noqa: F401 (re-exported: examples build meshes with it)
+from .cells.hexahedron import CORNERS
+from .io.mesh import hexes_to_mesh  # noqa: F401 (re-exported: examples build meshes with it)
 
 __all__ = [
     "gmsh_model",
@@ -28,7 +28,7 @@ __all__ = [
 
 
 #: The node across the hex from each node (parameter corner 1 - c).
-_OPPOSITE = np.array([int(np.flatnonzero((CORNERS == 1 - c).all(axis=1))[0]) for c in CORNERS])
+OPPOSITE = np.array([int(np.flatnonzero((CORNERS == 1 - c).all(axis=1))[0]) for c in CORNERS])
 
 
 def unit_cube() -> np.ndarray:
@@ -255,7 +255,7 @@ def demo_mesh(n: int = 6, *, seed: int = 0):
     """
     from .certify import check
 
-    from .mesh import HexMesh
+    from .io.mesh import HexMesh
 
     P, H = gmsh_mesh("ring", n)
     P = P.copy()
@@ -289,6 +289,6 @@ def demo_mesh(n: int = 6, *, seed: int = 0):
     for v in (pool[len(pool) // 5], pool[(4 * len(pool)) // 5]):
         mm = int(np.flatnonzero((H == v).any(axis=1))[0])
         k = int(np.flatnonzero(H[mm] == v)[0])
-        P[v] = P[v] + 1.2 * (P[H[mm][_OPPOSITE[k]]] - P[v])
+        P[v] = P[v] + 1.2 * (P[H[mm][OPPOSITE[k]]] - P[v])
         info["corner_inverted_vertices"].append(v)
     return P, H, info

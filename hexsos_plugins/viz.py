@@ -1,18 +1,22 @@
-"""Pictures of a check: the mesh coloured by min det J with invalid cells and their argmin points, and the
-histogram of min det J per hex (the paper's Figures 6, 7 and 9). pyvista and matplotlib are imported lazily
-(extra ``viz``); rendering is off-screen.
+"""Pictures of a check and of a repair: the mesh coloured by min det J with invalid cells and their argmin points,
+the histogram of min det J per hex (the paper's Figures 6, 7 and 9), a repair's convergence (the paper's Figure 11)
+and its scaled Jacobian before and after. pyvista and matplotlib are imported lazily (extra ``viz``); rendering is
+off-screen; every file is written atomically or not at all.
+
+Imports :mod:`hexsos_plugins.errors` and the cells wing only: it draws results, it computes none.
 """
 
 from __future__ import annotations
 
 import os
+import tempfile
 import warnings
 
 import numpy as np
 
 from .errors import DependencyError, MeshWriteError
 
-__all__ = ["screenshot", "histogram", "relative_min_det"]
+__all__ = ["screenshot", "histogram", "relative_min_det", "plot_history", "plot_histogram"]
 
 
 def relative_min_det(result) -> np.ndarray:
@@ -41,7 +45,7 @@ def _blocks(cells):
 
 
 def _grid(pv, points, blocks):
-    from .elements import ELEMENTS
+    from .cells.elements import ELEMENTS
 
     parts, types = [], []
     for t, conn in blocks:
@@ -98,7 +102,7 @@ def screenshot(points, cells, result, path, *, window_size=(1400, 1000), title: 
                        line_width=2, label=label)
     bad = np.flatnonzero(result.status != 1)
     if bad.size:  # (then at least one labelled item exists for the legend)
-        from .elements import world_points
+        from .cells.elements import world_points
 
         where = world_points(points, blocks, result.argmin)[bad]
         p.add_mesh(pv.PolyData(where).glyph(geom=pv.Sphere(radius=0.18 * h), scale=False, orient=False),
@@ -152,3 +156,86 @@ def histogram(result, path, *, title: str | None = None, bins: int = 60) -> str:
     finally:
         plt.close(fig)
     return path
+
+
+def _figure():
+    try:
+        from matplotlib.backends.backend_agg import FigureCanvasAgg  # no pyplot: no global backend switch
+        from matplotlib.figure import Figure
+    except ImportError as exc:
+        raise DependencyError("--plot / --histogram need matplotlib: pip install 'hexsos[viz]'") from exc
+    fig = Figure(figsize=(6.4, 4.0), dpi=120)
+    FigureCanvasAgg(fig)
+    return fig
+
+
+def _save(fig, path):
+    directory = os.path.dirname(os.path.abspath(path))
+    if not os.path.isdir(directory):
+        raise MeshWriteError(f"{path}: cannot write the plot, the directory {directory} does not exist")
+    fd, tmp = tempfile.mkstemp(prefix=".hexsos-plot.", suffix=".png", dir=directory)
+    os.close(fd)
+    try:
+        fig.savefig(tmp, format="png")
+        os.chmod(tmp, 0o644)
+        os.replace(tmp, path)
+    except BaseException:
+        try:
+            os.remove(tmp)
+        except OSError:
+            pass
+        raise
+    return path
+
+
+def plot_history(history, path, *, title: str | None = None) -> str:
+    """Write the convergence plot (the paper's Figure 11, plus the scaled Jacobian) as a PNG, atomically.
+
+    Cells not proven valid per step on the left y-axis; the smallest min det J over the mesh and, when the
+    history has it, the smallest scaled Jacobian on the right. Needs matplotlib (extra ``viz``); Agg backend.
+    """
+    it = [h["iteration"] for h in history]
+    bad = [h["invalid"] + h.get("undecided", 0) + h.get("other_invalid", 0) for h in history]
+    md = [h["min_det"] for h in history]
+    fig = _figure()
+    ax = fig.add_subplot(1, 1, 1)
+    ax.plot(it, bad, "-o", color="tab:blue", markersize=3, label="cells not proven valid")
+    ax.set_xlabel("outer step" if "stage" in history[-1] else "outer iteration (Algorithm 2)")
+    ax.set_ylabel("cells not proven valid", color="tab:blue")
+    ax.tick_params(axis="y", labelcolor="tab:blue")
+    ax.set_ylim(bottom=0)
+    ax2 = ax.twinx()
+    ax2.plot(it, md, "-s", color="tab:red", markersize=3, label="min det J")
+    if all("min_sj" in h for h in history):
+        ax2.plot(it, [h["min_sj"] for h in history], "-^", color="tab:green", markersize=3,
+                 label="min scaled Jacobian")
+        ax2.set_ylabel("min det J (red), min scaled Jacobian (green)")
+        ax2.legend(loc="lower right", fontsize=8)
+    else:
+        ax2.set_ylabel("min det J over the mesh", color="tab:red")
+    ax2.axhline(0.0, color="tab:red", linewidth=0.6, linestyle=":")
+    ax2.tick_params(axis="y", labelcolor="tab:red")
+    ax.set_title(f"hexsos repair{': ' + title if title else ''}")
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    return _save(fig, path)
+
+
+def plot_histogram(before, after, path, *, title: str | None = None) -> str:
+    """Write the histogram of the scaled Jacobian per cell before and after the repair as a PNG, atomically."""
+    b = np.asarray(before, dtype=np.float64)
+    a = np.asarray(after, dtype=np.float64)
+    b, a = b[np.isfinite(b)], a[np.isfinite(a)]
+    fig = _figure()
+    ax = fig.add_subplot(1, 1, 1)
+    bins = np.linspace(min(-1.0, float(b.min()) if b.size else -1.0), 1.0, 81)
+    ax.hist(b, bins=bins, alpha=0.55, color="tab:red", label=f"before (min {b.min():.3f})" if b.size else "before")
+    ax.hist(a, bins=bins, alpha=0.55, color="tab:blue", label=f"after (min {a.min():.3f})" if a.size else "after")
+    ax.set_yscale("log")
+    ax.set_xlabel("scaled Jacobian (Verdict, corners)")
+    ax.set_ylabel("cells")
+    ax.axvline(0.0, color="k", linewidth=0.6, linestyle=":")
+    ax.legend(loc="upper left", fontsize=8)
+    ax.set_title(f"hexsos repair{': ' + title if title else ''}")
+    fig.tight_layout()
+    return _save(fig, path)

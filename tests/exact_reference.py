@@ -12,9 +12,9 @@ from math import factorial, prod
 
 import numpy as np
 
-from hexsos_plugins.elements import ELEMENTS, _eval_exact
+from hexsos_plugins.cells.elements import ELEMENTS, eval_exact
 
-# (kind, degree) of det J's factors, restated (see the module docstring of hexsos_plugins.jacobian)
+# (kind, degree) of det J's factors, restated (see the module docstring of hexsos_plugins.cells.jacobian)
 DEGREES = {
     "tetra": (("tet", 0),),
     "tetra10": (("tet", 3),),
@@ -72,7 +72,7 @@ def _tables(name):
         Tk = [_inverse([[_basis(k, p, a, x) for a in _multi(k, p)] for x in pp]) for (k, p), pp in zip(facs, pts)]
         grid = [sum((list(x) for x in combo), []) for combo in product(*pts)]
         el = ELEMENTS[name]
-        D = [[[_eval_exact(el.derivative_polynomials[d][i], g) for d in range(3)] for i in range(el.n_nodes)]
+        D = [[[eval_exact(el.derivative_polynomials[d][i], g) for d in range(3)] for i in range(el.n_nodes)]
              for g in grid]
         _CACHE[name] = (Tk, D, [len(pp) for pp in pts])
     return _CACHE[name]
@@ -83,7 +83,7 @@ def exact_det(X, name, x):
     el = ELEMENTS[name]
     Xf = [[Fraction(float(v)) for v in r] for r in np.asarray(X, float)]
     xf = [Fraction(v) for v in x]
-    J = [[sum((Xf[i][a] * _eval_exact(el.derivative_polynomials[d][i], xf) for i in range(el.n_nodes)), Fraction(0))
+    J = [[sum((Xf[i][a] * eval_exact(el.derivative_polynomials[d][i], xf) for i in range(el.n_nodes)), Fraction(0))
           for d in range(3)] for a in range(3)]
     return (J[0][0] * (J[1][1] * J[2][2] - J[1][2] * J[2][1]) - J[0][1] * (J[1][0] * J[2][2] - J[1][2] * J[2][0])
             + J[0][2] * (J[1][0] * J[2][1] - J[1][1] * J[2][0]))

@@ -116,7 +116,7 @@ def test_check_uses_every_core_by_default_and_one_with_jobs_1(tmp_path, capsys, 
     import argparse
 
     from hexsos_plugins import kernel
-    from hexsos_plugins.cli_common import resolve_run_options
+    from hexsos_plugins.cli.common import resolve_run_options
 
     P, H = structured_grid(30)  # 27,000 hexes: several tasks of cells
     path = tmp_path / "grid.vtu"
@@ -125,7 +125,7 @@ def test_check_uses_every_core_by_default_and_one_with_jobs_1(tmp_path, capsys, 
     run_cells = kernel.run_cells
 
     def spy(*a, **k):  # the kernel's thread setting at each call
-        seen.append(kernel._THREADS)
+        seen.append(kernel.threads())
         return run_cells(*a, **k)
 
     monkeypatch.setattr(kernel, "run_cells", spy)
@@ -137,7 +137,7 @@ def test_check_uses_every_core_by_default_and_one_with_jobs_1(tmp_path, capsys, 
     (default, threads), (one, single) = runs[()], runs[("--jobs", "1")]
     assert threads == {kernel.cores()} and single == {1}
     assert default["valid"] == one["valid"] == 27000
-    assert kernel._THREADS == 1  # restored after the command
+    assert kernel.threads() == 1  # restored after the command
     ns = argparse.Namespace
     assert resolve_run_options(ns(jobs=None, processes=1, scheduler=None)).jobs == 0
     assert resolve_run_options(ns(jobs=None, processes=2, scheduler=None)).jobs == 1
@@ -157,27 +157,27 @@ def test_a_just_in_time_compilation_is_announced_and_nothing_else(tmp_path, monk
     import importlib
     from types import SimpleNamespace
 
-    from hexsos_plugins import kernel
-    from hexsos_plugins.cli_common import announce_compilation
+    from hexsos_plugins.cli.common import announce_compilation
+    from hexsos_plugins.kernel import compiled as kcompiled
 
     (tmp_path / "hexsos_tiny_jit.py").write_text(
         "from numba import njit\n\n\n@njit(cache=True)\ndef f(x):\n    return x + 1\n\n\n"
         "@njit(cache=True)\ndef g(x):\n    return x + 2\n")
     monkeypatch.syspath_prepend(str(tmp_path))
     tiny = importlib.import_module("hexsos_tiny_jit")
-    assert kernel._jit_cached(tiny.f) is False
+    assert kcompiled.jit_cached(tiny.f) is False
     assert tiny.f(1) == 2
-    assert kernel._jit_cached(tiny.f) is True and kernel._jit_cached(tiny.g) is False
-    assert kernel._jit_cached(object()) is None  # not a cached numba function: unknown, no notice
+    assert kcompiled.jit_cached(tiny.f) is True and kcompiled.jit_cached(tiny.g) is False
+    assert kcompiled.jit_cached(object()) is None  # not a cached numba function: unknown, no notice
     runs = argparse.Namespace(jobs=0)
-    monkeypatch.setattr(kernel, "_KIND", "jit")
-    monkeypatch.setattr(kernel, "_impl", SimpleNamespace(run_chunk=tiny.g))
+    monkeypatch.setattr(kcompiled, "KIND", "jit")
+    monkeypatch.setattr(kcompiled, "impl", SimpleNamespace(run_chunk=tiny.g))
     assert announce_compilation(runs) and "compiling the kernel just in time" in capsys.readouterr().err
     assert not announce_compilation(argparse.Namespace())  # a command without the kernel
-    monkeypatch.setattr(kernel, "_impl", SimpleNamespace(run_chunk=tiny.f))  # cached: no wait, no notice
+    monkeypatch.setattr(kcompiled, "impl", SimpleNamespace(run_chunk=tiny.f))  # cached: no wait, no notice
     assert not announce_compilation(runs)
-    monkeypatch.setattr(kernel, "_KIND", "aot")
-    monkeypatch.setattr(kernel, "_impl", SimpleNamespace(run_chunk=tiny.g))
+    monkeypatch.setattr(kcompiled, "KIND", "aot")
+    monkeypatch.setattr(kcompiled, "impl", SimpleNamespace(run_chunk=tiny.g))
     assert not announce_compilation(runs) and capsys.readouterr().err == ""
 
 

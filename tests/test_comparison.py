@@ -10,7 +10,7 @@ pytest.importorskip("gmsh")
 pytest.importorskip("vtkmodules")
 
 from comparison import EXPERIMENTS  # noqa: E402
-from comparison import _common as C  # noqa: E402
+from comparison import common as C  # noqa: E402
 from comparison import argmin_locations, figures_1_2, sampling  # noqa: E402
 from comparison.__main__ import main  # noqa: E402
 from hexsos_plugins import check  # noqa: E402

@@ -19,7 +19,8 @@ import numpy as np
 import pytest
 
 import hexsos_plugins as hs
-from hexsos_plugins import cli, cli_doors
+from hexsos_plugins import cli
+from hexsos_plugins.cli import doors as cli_doors
 from hexsos_plugins.examples import structured_grid
 
 HEXSOS = [sys.executable, "-m", "hexsos_plugins"]
@@ -253,7 +254,7 @@ def test_every_hexsos_command_records_its_environment(tmp_path):
     assert [e["executable"] for e in entries] == [sys.executable, other["executable"]]  # newest first, gone dropped
     mine = entries[0]
     assert mine["python"] == platform.python_version() and mine["hexsos"] == hs.__version__
-    fresh = run([sys.executable, "-c", "import json; from hexsos_plugins import cli_doors; "
+    fresh = run([sys.executable, "-c", "import json; from hexsos_plugins.cli import doors as cli_doors; "
                                        "print(json.dumps(cli_doors.environment_paths()))"], tmp_path)
     assert mine["paths"] == json.loads(fresh.stdout) and mine["paths"][0] == ROOT
     # already first: not rewritten; another Python's run puts its own first
@@ -282,18 +283,18 @@ def test_the_plugin_reads_the_record_and_names_both_versions(tmp_path, monkeypat
     here, there = tmp_path / "here", tmp_path / "there"
     here.mkdir()
     there.mkdir()
-    assert "no hexsos command has recorded" in plugin._version_note()
+    assert "no hexsos command has recorded" in plugin.version_note()
     # only another Python version recorded: its paths are not used, and the note names both versions
     cli_doors.record_environment(str(record), python="3.99.1", executable=shutil.which("sh"),
                                  paths=[str(there)])
     assert str(there) not in plugin.dependency_paths()
-    note = plugin._version_note()
+    note = plugin.version_note()
     assert f"Python 3.99.1 ({shutil.which('sh')})" in note and f"Python {sys.version.split()[0]}" in note
     # this version recorded (more recently): its paths are appended after the plugin's own
     cli_doors.record_environment(str(record), paths=[str(here)])
     assert [e["python"] for e in plugin.recorded_environments()] == [platform.python_version(), "3.99.1"]
     paths = plugin.dependency_paths()
-    assert str(here) in paths and str(there) not in paths and plugin._version_note() == ""
+    assert str(here) in paths and str(there) not in paths and plugin.version_note() == ""
     # a damaged record counts as nothing recorded
     record.write_text("{not json")
     assert plugin.recorded_environments() == [] and str(here) not in plugin.dependency_paths()

@@ -23,7 +23,7 @@ import numpy as np
 import pytest
 
 import hexsos_plugins as hs
-from hexsos_plugins import cli_doors
+from hexsos_plugins.cli import doors as cli_doors
 
 PVPYTHON = shutil.which("pvpython")
 PARAVIEW = shutil.which("paraview")
@@ -101,7 +101,7 @@ def wheel(tmp_path_factory):
 
 
 def test_the_wheel_holds_every_module_and_the_package_data(wheel, tmp_path):
-    for pkg in PACKAGES:  # every module of the working tree, subpackages (hexsos_plugins.readers) included
+    for pkg in PACKAGES:  # every module of the working tree, subpackages (hexsos_plugins.io.readers) included
         for folder, dirs, files in os.walk(os.path.join(ROOT, pkg)):
             dirs[:] = [d for d in dirs if d != "__pycache__"]
             for f in files:
@@ -110,7 +110,7 @@ def test_the_wheel_holds_every_module_and_the_package_data(wheel, tmp_path):
                     assert os.path.isfile(os.path.join(wheel.site, rel)), f"{rel} is not in the wheel"
     assert os.path.isfile(os.path.join(wheel.site, "vtk_filter", "paraview_compat", "usercustomize.py"))
     # the environment imports the wheel's copy, not the checkout
-    proc = run([wheel.python, "-c", "import hexsos_plugins, vtk_filter, gmsh_plugin, hexsos_plugins.readers as r; "
+    proc = run([wheel.python, "-c", "import hexsos_plugins, vtk_filter, gmsh_plugin, hexsos_plugins.io.readers as r; "
                 "print(hexsos_plugins.__file__, vtk_filter.__file__, gmsh_plugin.__file__, r.__file__)"],
                tmp_path, wheel.env(tmp_path / "config"))
     assert proc.returncode == 0, proc.stderr

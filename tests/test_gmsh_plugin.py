@@ -21,7 +21,7 @@ import pytest
 gmsh = pytest.importorskip("gmsh")
 
 from hexsos_plugins import NoHexahedraError, check  # noqa: E402
-from hexsos_plugins.elements import ELEMENTS  # noqa: E402
+from hexsos_plugins.cells.elements import ELEMENTS  # noqa: E402
 from hexsos_plugins.errors import InvalidInputError  # noqa: E402
 from hexsos_plugins.examples import demo_mesh, gmsh_mesh, hexes_to_mesh, inside_invalid_hex  # noqa: E402
 
@@ -302,7 +302,7 @@ def test_no_hexahedra_and_no_session_are_typed_errors(session):
 
 def test_world_points_at_the_corners_are_the_vertices():
     P, H = hexes_to_mesh(inside_invalid_hex())
-    from hexsos_plugins.hexahedron import CORNERS
+    from hexsos_plugins.cells.hexahedron import CORNERS
 
     np.testing.assert_allclose(gm.world_points(P, np.repeat(H, 8, axis=0), CORNERS), P[H[0]])
     np.testing.assert_allclose(gm.world_points(P, H, [[0.5, 0.5, 0.5]])[0], P.mean(axis=0))
@@ -432,15 +432,15 @@ def test_panel_errors_are_shown_not_raised(session):
 def _repairable():
     """A ring with an interior vertex pushed part-way through its neighbour (2 corner-invalid hexes) and a
     separate hex that is valid at its corners but invalid inside: 3 invalid hexes the repair fixes."""
-    from hexsos_plugins.examples import _OPPOSITE
-    from hexsos_plugins.mesh import HexMesh
+    from hexsos_plugins.examples import OPPOSITE
+    from hexsos_plugins.io.mesh import HexMesh
 
     P, H = gmsh_mesh("ring", 2)
     interior = np.flatnonzero(~HexMesh.from_arrays(P, H).boundary_vertices())
     v = int(interior[interior.size // 2])
     m = int(np.flatnonzero((H == v).any(axis=1))[0])
     k = int(np.flatnonzero(H[m] == v)[0])
-    P[v] += 0.7 * (P[H[m][_OPPOSITE[k]]] - P[v])
+    P[v] += 0.7 * (P[H[m][OPPOSITE[k]]] - P[v])
     X = 0.1 * inside_invalid_hex() + [3.0, 0.0, 0.0]
     P = np.vstack([P, X])
     H = np.vstack([H, P.shape[0] - 8 + np.arange(8)[None]])
@@ -605,7 +605,7 @@ def test_cli_all_valid_exits_0_in_process(tmp_path, capsys):
     path = str(tmp_path / "box.vtk")
     P, H = gmsh_mesh("box", 2)
     from hexsos_plugins.io import write
-    from hexsos_plugins.mesh import HexMesh
+    from hexsos_plugins.io.mesh import HexMesh
 
     write(HexMesh.from_arrays(P, H), path)  # legacy VTK that Gmsh reads
     assert not gmsh.isInitialized()
@@ -631,7 +631,7 @@ def test_cli_headless_without_display_and_repair(demo_msh, tmp_path, capsys, mon
 def test_cli_reads_other_formats_gmsh_reads(demo, tmp_path, capsys, ext):
     P, H, _, ref = demo
     from hexsos_plugins.io import write
-    from hexsos_plugins.mesh import HexMesh
+    from hexsos_plugins.io.mesh import HexMesh
 
     path = str(tmp_path / f"demo.{ext}")
     write(HexMesh.from_arrays(P, H), path)

@@ -3,7 +3,8 @@
 import numpy as np
 import pytest
 
-from hexsos_plugins import hexahedron as hx
+from hexsos_plugins import kernel
+from hexsos_plugins.cells import hexahedron as hx
 from hexsos_plugins.examples import inside_invalid_hex, random_hexes, unit_cube
 from oracle import det_j
 
@@ -27,14 +28,14 @@ def test_twenty_monomials_of_total_degree_at_most_four():
 
 
 def test_unit_cube_has_det_one_everywhere():
-    B, err = hx.det_bernstein(unit_cube())
+    B, err = kernel.det_bernstein(unit_cube())
     assert np.allclose(B, 1.0, atol=0, rtol=1e-15)
     assert 0 < err[0] < 1e-12
 
 
 def test_bernstein_coefficients_match_exact_rational_arithmetic_within_the_bound():
     X = random_hexes(20, sigma=0.5, seed=3)
-    B, err = hx.det_bernstein(X)
+    B, err = kernel.det_bernstein(X)
     for m in range(20):
         exact = np.array([float(c) for c in hx.bernstein_exact(X[m])])
         assert np.all(np.abs(B[:, m] - exact) <= err[m])
@@ -43,7 +44,7 @@ def test_bernstein_coefficients_match_exact_rational_arithmetic_within_the_bound
 
 def test_corner_coefficients_are_the_corner_values():
     X = random_hexes(10, seed=4)
-    B, _ = hx.det_bernstein(X)
+    B, _ = kernel.det_bernstein(X)
     for n, c in enumerate(hx.CORNERS):
         k = 9 * 2 * c[0] + 3 * 2 * c[1] + 2 * c[2]
         assert np.allclose(B[k], det_j(X, np.broadcast_to(c.astype(float), (10, 1, 3)))[:, 0], rtol=1e-13, atol=1e-13)
@@ -53,7 +54,7 @@ def test_values_agree_in_all_three_evaluations_and_with_the_oracle():
     X = random_hexes(50, sigma=0.4, seed=5)
     rng = np.random.default_rng(0)
     p = rng.random((50, 3))
-    B, _ = hx.det_bernstein(X)
+    B, _ = kernel.det_bernstein(X)
     C = hx.bernstein_to_monomial(B)
     mono = sum(C[i] * p[:, 0] ** a * p[:, 1] ** b * p[:, 2] ** c for i, (a, b, c) in enumerate(hx.MONOMIALS))
     direct, err = hx.det_at(X, p)
@@ -66,7 +67,7 @@ def test_values_agree_in_all_three_evaluations_and_with_the_oracle():
 def test_monomial_form_has_no_other_terms():
     # the tensor expansion of det J has exactly the 20 monomials: the other 7 tensor terms vanish
     X = random_hexes(30, sigma=0.6, seed=6)
-    B, _ = hx.det_bernstein(X)
+    B, _ = kernel.det_bernstein(X)
     T = B.reshape(3, 3, 3, -1).copy()
     for ax in range(3):
         T = np.moveaxis(T, ax, 0)
@@ -80,7 +81,7 @@ def test_monomial_form_has_no_other_terms():
 
 def test_gradient_and_hessian_by_finite_differences():
     X = random_hexes(8, seed=7)
-    B, _ = hx.det_bernstein(X)
+    B, _ = kernel.det_bernstein(X)
     p = np.random.default_rng(1).uniform(0.1, 0.9, (8, 3))
     f, g, H = hx.det_derivatives(B, p)
     h = 1e-6
@@ -130,11 +131,11 @@ def test_exact_det_is_exact():
 @pytest.mark.parametrize("shape", ["soa", "aos", "single"])
 def test_input_layouts_agree(shape):
     X = random_hexes(3, seed=9)
-    ref, _ = hx.det_bernstein(hx.gather(X.reshape(-1, 3), np.arange(24).reshape(3, 8)), layout="soa")
+    ref, _ = kernel.det_bernstein(hx.gather(X.reshape(-1, 3), np.arange(24).reshape(3, 8)), layout="soa")
     if shape == "soa":
-        B, _ = hx.det_bernstein(np.ascontiguousarray(X.transpose(2, 1, 0)), layout="soa")
+        B, _ = kernel.det_bernstein(np.ascontiguousarray(X.transpose(2, 1, 0)), layout="soa")
     elif shape == "aos":
-        B, _ = hx.det_bernstein(X)
+        B, _ = kernel.det_bernstein(X)
     else:
-        B = np.stack([hx.det_bernstein(X[m])[0][:, 0] for m in range(3)], axis=1)
+        B = np.stack([kernel.det_bernstein(X[m])[0][:, 0] for m in range(3)], axis=1)
     assert np.array_equal(B, ref)

@@ -26,8 +26,8 @@ from hexsos_plugins.errors import (
     NoHexahedraError,
     UnsupportedFormatError,
 )
-from hexsos_plugins.hexahedron import VOXEL_TO_VTK, det_at
-from hexsos_plugins.mesh import INT_FILL, HexMesh
+from hexsos_plugins.cells.hexahedron import VOXEL_TO_VTK, det_at
+from hexsos_plugins.io.mesh import INT_FILL, HexMesh
 
 
 # ---------------------------------------------------------------------------------------------- fixtures
@@ -166,9 +166,9 @@ def test_plain_medit_is_read_by_meshio_and_by_us_alike(tmp_path):
     assert not meshio_fails(path)
     hm = read_checked(path)
     assert hm.hexes.tolist() == [list(range(8))]
-    from hexsos_plugins.io import _read_medit_text
+    from hexsos_plugins.io.readers.medit import read_medit_text
 
-    ours = _read_medit_text(path.read_bytes(), path)
+    ours = read_medit_text(path.read_bytes(), path)
     theirs = meshio.read(str(path))
     assert np.array_equal(ours.points, theirs.points)
     assert all(a.type == b.type and np.array_equal(a.data, b.data) for a, b in zip(ours.cells, theirs.cells))
@@ -261,7 +261,7 @@ def test_voxel_source_is_written_as_hexahedra(tmp_path):
 
 
 def test_vtu_voxels_are_read_by_vtk_and_meshio_refuses_them(tmp_path, monkeypatch):
-    monkeypatch.setattr("hexsos_plugins.readers.VTK_MIN_BYTES", 0)
+    monkeypatch.setattr("hexsos_plugins.io.readers.VTK_MIN_BYTES", 0)
     path = tmp_path / "voxel.vtu"
     with contextlib.redirect_stderr(io.StringIO()):
         meshio.write(str(path), meshio.Mesh(CUBE, [("hexahedron", [list(range(8))]), ("tetra", [[0, 1, 3, 4]])]),
@@ -274,7 +274,7 @@ def test_vtu_voxels_are_read_by_vtk_and_meshio_refuses_them(tmp_path, monkeypatc
     assert hm.reader == "vtk" and [b.type for b in hm.source.cells] == ["voxel", "tetra"]
     assert hm.hexes.tolist() == [np.arange(8)[VOXEL_TO_VTK].tolist()] and hm.voxel_rows.tolist() == [True]
     # meshio alone would skip the voxel: that is an error, not a silent loss
-    monkeypatch.setattr("hexsos_plugins.readers.vtk_api._AVAILABLE", False)
+    monkeypatch.setattr("hexsos_plugins.io.readers.vtk_api._AVAILABLE", False)
     with pytest.raises(MeshFormatError, match="type 11"):
         read_checked(path)
     # negative case: the unmodified file reads through meshio too
@@ -327,7 +327,9 @@ def test_vtk_51_written_by_meshio_is_read(tmp_path):
     hm = read_checked(path)
     assert np.array_equal(hm.hexes, hexes)
     # our own reader handles the 5.1 layout (OFFSETS / CONNECTIVITY) too
-    ours = hio._read_legacy_vtk(path.read_bytes(), path)
+    from hexsos_plugins.io.readers.legacy_vtk import read_legacy_vtk
+
+    ours = read_legacy_vtk(path.read_bytes(), path)
     assert np.array_equal(ours.cells[0].data, hexes)
 
 

@@ -12,8 +12,13 @@ import pytest
 
 import exact_reference as ref
 import vtk_oracle
-from hexsos_plugins import check, kernel
-from hexsos_plugins.elements import CELL_TYPES, ELEMENTS
+from hexsos_plugins import check
+from hexsos_plugins import kernel
+from hexsos_plugins.generate import codegen
+from hexsos_plugins.kernel import calls as kcalls
+from hexsos_plugins.kernel import compiled as kcompiled
+from hexsos_plugins.kernel import cell_tables as ktables
+from hexsos_plugins.cells.elements import CELL_TYPES, ELEMENTS
 
 TYPES = list(CELL_TYPES)
 QUADRATIC = {"tetra10", "wedge15", "wedge18", "hexahedron20", "hexahedron27", "pyramid13", "pyramid14"}
@@ -398,7 +403,8 @@ def test_flatness_scale_is_not_a_free_knob():
 def test_no_fastmath_in_anything_that_feeds_a_bound():
     from numba.core.registry import CPUDispatcher
 
-    from hexsos_plugins import _kernel_gen, _kernel_src
+    from hexsos_plugins.kernel import generated as _kernel_gen
+    from hexsos_plugins.kernel import source as _kernel_src
 
     found = [f for m in (_kernel_src, _kernel_gen) for f in vars(m).values() if isinstance(f, CPUDispatcher)]
     assert len(found) > 15
@@ -409,10 +415,10 @@ def test_no_fastmath_in_anything_that_feeds_a_bound():
 def test_compiled_extension_is_built_from_this_source_and_matches_the_jit():
     """The extension compiled at install is in use (no compilation at run time) and gives bit-identical results
     to numba's just-in-time compilation of the same source."""
-    from hexsos_plugins import _kernel_src
+    from hexsos_plugins.kernel import source as _kernel_src
 
     assert kernel.implementation() == "aot", "the compiled kernel extension was not built (pip install -e .)"
-    from hexsos_plugins import _kernel_aot
+    from hexsos_plugins.kernel import aot as _kernel_aot
 
     for name in ("hexahedron", "wedge15", "pyramid", "pyramid13"):
         X = _perturbed(name, 40, 0.3, 51)
@@ -422,8 +428,8 @@ def test_compiled_extension_is_built_from_this_source_and_matches_the_jit():
         t = kernel.tables(name)
         outs = []
         for impl in (_kernel_aot, _kernel_src):
-            out = kernel._run_outputs(len(ids))
-            impl.run_chunk(*kernel._run_args(P, conn, ids, t, out, 0, len(ids)))
+            out = kcalls.run_outputs(len(ids))
+            impl.run_chunk(*kcalls.run_args(P, conn, ids, t, out, 0, len(ids)))
             outs.append(out)
         for key in outs[0]:
             assert np.array_equal(outs[0][key], outs[1][key]), (name, key)
@@ -431,10 +437,10 @@ def test_compiled_extension_is_built_from_this_source_and_matches_the_jit():
 
 def test_saved_tables_are_the_computed_ones():
     """The tables written at build time (loaded at run time) equal the ones computed from the exact rationals."""
-    saved = kernel._saved("hexahedron27")
+    saved = ktables.saved_tables("hexahedron27")
     assert saved is not None, "the tables file is missing or stale (pip install -e . writes it)"
     fresh = kernel.Tables("hexahedron27")
-    for f in kernel._TABLE_FIELDS:
+    for f in ktables.TABLE_FIELDS:
         assert np.array_equal(getattr(saved, f), getattr(fresh, f)), f
 
 
@@ -475,7 +481,7 @@ def test_second_order_bound_is_below_the_exact_minimum_and_tight_near_it():
     """The kernel's Taylor bound on a box (Bernstein coefficients of a quadratic) is never above the quadratic's
     exact minimum there, convex or not, minimizer inside or on the boundary; at the minimizer of a convex one
     it is within rounding of the minimum."""
-    from hexsos_plugins import _kernel_src as src
+    from hexsos_plugins.kernel import source as src
 
     rng = np.random.default_rng(61)
     sp = kernel.tables("hexahedron")
@@ -506,10 +512,10 @@ def test_second_order_bound_is_below_the_exact_minimum_and_tight_near_it():
         bern = Minv @ mono_c
         exact = _box_quadratic_min(Q, q, c)
         for t in (np.clip(x0, 0, 1), rng.random(3), np.array([0.0, 1.0, 0.5])):
-            bound = src._taylor_bound(bern, 1e-15, np.ascontiguousarray(t), sp.sizes, W, Wd, F3, F33, I3)
+            bound = src.taylor_bound(bern, 1e-15, np.ascontiguousarray(t), sp.sizes, W, Wd, F3, F33, I3)
             assert bound <= exact + 1e-12 * (1 + abs(exact)), (trial, t, bound, exact)
         if trial % 2 and np.all((x0 > 0) & (x0 < 1)):
-            bound = src._taylor_bound(bern, 0.0, np.ascontiguousarray(x0), sp.sizes, W, Wd, F3, F33, I3)
+            bound = src.taylor_bound(bern, 0.0, np.ascontiguousarray(x0), sp.sizes, W, Wd, F3, F33, I3)
             assert bound >= exact - 1e-9 * (1 + abs(exact))
             tight += 1
     assert tight > 10
@@ -519,7 +525,7 @@ def test_compiled_scaled_jacobian_is_verdicts_as_quality_computes_it():
     """The compiled scaled Jacobian (what hexsos check reports) equals quality.scaled_jacobian, itself tested
     against vtkMeshQuality, on random cells of every linear type, inverted ones included; quadratic cells get
     their corners' value (Verdict's convention)."""
-    from hexsos_plugins import quality
+    from hexsos_plugins.cells import quality
 
     rng = np.random.default_rng(71)
     for name, X0 in quality.IDEAL.items():
@@ -545,7 +551,7 @@ def test_generated_scaled_jacobian_is_current_and_bit_identical_to_the_table_loo
     """Each linear type's scaled Jacobian runs straight-line generated code (_kernel_gen) that gives the table
     loop's numbers bit for bit, on random, inverted, ideal and degenerate cells; a sample table the generated code
     was not made from is not used (its fingerprint differs), and would give other numbers."""
-    from hexsos_plugins import quality
+    from hexsos_plugins.cells import quality
 
     rng = np.random.default_rng(74)
     for name, X0 in quality.IDEAL.items():
@@ -557,14 +563,14 @@ def test_generated_scaled_jacobian_is_current_and_bit_identical_to_the_table_loo
         P = X.reshape(-1, 3)
         C = np.arange(len(P)).reshape(len(X), -1)
         ids = np.arange(len(C))
-        assert kernel._sj_id(name) == kernel.SJ_GENERATED.index(name) + 1
+        assert ktables.sj_id(name) == ktables.SJ_GENERATED.index(name) + 1
         gen, loop = np.empty(len(C)), np.empty(len(C))
-        kernel._impl.scaled_jacobian_chunk(*kernel._sj_args(P, C, ids, name, gen, 0, len(C)))
-        kernel._impl.scaled_jacobian_chunk(*kernel._sj_args(P, C, ids, name, loop, 0, len(C), generated=False))
+        kcompiled.impl.scaled_jacobian_chunk(*kcalls.sj_args(P, C, ids, name, gen, 0, len(C)))
+        kcompiled.impl.scaled_jacobian_chunk(*kcalls.sj_args(P, C, ids, name, loop, 0, len(C), generated=False))
         assert np.array_equal(gen, loop), name
         assert gen[1] == 0.0 and gen[2] == 0.0 and gen[3] < 0 < gen[0] and (gen < 0).any() and (gen > 0.5).any()
     # negative case: swap two samples' first columns: the loop computes other numbers, the fingerprint moves
-    real = kernel.sj_tables
+    real = ktables.sj_tables
 
     def swapped(name):
         vptr, vnode, vw, samp, ssign, factor = real(name)
@@ -575,10 +581,11 @@ def test_generated_scaled_jacobian_is_current_and_bit_identical_to_the_table_loo
     X = quality.IDEAL["hexahedron"][None] + 0.3 * rng.standard_normal((50, 8, 3))
     P, C = X.reshape(-1, 3), np.arange(400).reshape(50, 8)
     before = kernel.scaled_jacobian(P, C)
-    monkeypatch.setattr(kernel, "sj_tables", swapped)
-    assert kernel._sj_id("hexahedron") == 0
+    monkeypatch.setattr(ktables, "sj_tables", swapped)
+    monkeypatch.setattr(kcalls, "sj_tables", swapped)
+    assert ktables.sj_id("hexahedron") == 0
     other = np.empty(50)
-    kernel._impl.scaled_jacobian_chunk(*kernel._sj_args(P, C, np.arange(50), "hexahedron", other, 0, 50))
+    kcompiled.impl.scaled_jacobian_chunk(*kcalls.sj_args(P, C, np.arange(50), "hexahedron", other, 0, 50))
     assert not np.array_equal(before, other)
 
 
@@ -592,8 +599,8 @@ def test_the_compiled_kernel_releases_the_gil():
     P, H = structured_grid(60)  # 216,000 hexes: a call of a good fraction of a second
     ids = np.arange(len(H))
     t = kernel.tables("hexahedron")
-    out = kernel._run_outputs(len(ids))
-    kernel._impl.run_chunk(*kernel._run_args(P, H, ids, t, out, 0, 10))
+    out = kcalls.run_outputs(len(ids))
+    kcompiled.impl.run_chunk(*kcalls.run_args(P, H, ids, t, out, 0, 10))
     done, count = threading.Event(), [0]
 
     def spin():
@@ -606,7 +613,7 @@ def test_the_compiled_kernel_releases_the_gil():
         while count[0] == 0:
             pass
         c0 = count[0]
-        kernel._impl.run_chunk(*kernel._run_args(P, H, ids, t, out, 0, len(ids)))
+        kcompiled.impl.run_chunk(*kcalls.run_args(P, H, ids, t, out, 0, len(ids)))
         c1 = count[0]
     finally:
         done.set()
@@ -654,12 +661,12 @@ def test_generated_products_are_current_and_bit_identical_to_the_table_loops():
     coefficients and error bounds equal the table loops' bit for bit, adversarial cells included."""
     from pathlib import Path
 
-    from hexsos_plugins import _kernel_gen
+    from hexsos_plugins.kernel import generated as _kernel_gen
 
-    assert Path(_kernel_gen.__file__).read_text() == kernel.generated_source()
+    assert Path(_kernel_gen.__file__).read_text() == codegen.generated_source()
     for name in TYPES:
-        assert kernel.tables(name).consts[6] == (kernel.GENERATED.index(name) + 1 if name in kernel.GENERATED else 0)
-    for name in kernel.GENERATED:
+        assert kernel.tables(name).consts[6] == (ktables.GENERATED.index(name) + 1 if name in ktables.GENERATED else 0)
+    for name in ktables.GENERATED:
         X = np.array([_reference(name)] + _adversarial(name, 71) + list(_perturbed(name, 300, 0.4, 72)))
         P = X.reshape(-1, 3)
         conn = np.arange(P.shape[0]).reshape(X.shape[0], -1)
@@ -667,7 +674,7 @@ def test_generated_products_are_current_and_bit_identical_to_the_table_loops():
         outs = []
         for t in (kernel.Tables(name), kernel.Tables(name, generated=False)):
             o = (np.empty((len(ids), t.nb)), np.empty(len(ids)), np.empty(len(ids), dtype=np.int64), np.empty(len(ids)))
-            kernel._impl.coefficients_chunk(*kernel._coefficient_args(P, conn, ids, t, o, 0, len(ids)))
+            kcompiled.impl.coefficients_chunk(*kcalls.coefficient_args(P, conn, ids, t, o, 0, len(ids)))
             outs.append(o)
         assert outs[0][0].shape[1] > 0 and kernel.Tables(name).consts[6] > 0
         for a, b in zip(*outs):
@@ -675,21 +682,21 @@ def test_generated_products_are_current_and_bit_identical_to_the_table_loops():
     # negative case: a table with a weight changed is not what the generated code computes, and its fingerprint
     # no longer matches the generated code's, so the kernel would not use it
     t = kernel.Tables("hexahedron", generated=False)
-    assert kernel._generated_id(t) == kernel.GENERATED.index("hexahedron") + 1
+    assert ktables.generated_id(t) == ktables.GENERATED.index("hexahedron") + 1
     t.dw = t.dw.copy()
     t.dw[0] *= 1.5
-    assert kernel._generated_id(t) == 0
+    assert ktables.generated_id(t) == 0
     # so is a table whose columns read other nodes (the generated columns are fingerprinted too)
     t2 = kernel.Tables("hexahedron", generated=False)
     t2.col_b = t2.col_b.copy()
     t2.col_b[[0, 1]] = t2.col_b[[1, 0]]
-    assert kernel._generated_id(t2) == 0
+    assert ktables.generated_id(t2) == 0
     X = _perturbed("hexahedron", 20, 0.3, 73)
     P = X.reshape(-1, 3)
     conn = np.arange(P.shape[0]).reshape(20, -1)
     o1 = kernel.coefficients(P, conn, np.arange(20), "hexahedron")[0]
     o2 = (np.empty((20, t.nb)), np.empty(20), np.empty(20, dtype=np.int64), np.empty(20))
-    kernel._impl.coefficients_chunk(*kernel._coefficient_args(P, conn, np.arange(20), t, o2, 0, 20))
+    kcompiled.impl.coefficients_chunk(*kcalls.coefficient_args(P, conn, np.arange(20), t, o2, 0, 20))
     assert not np.array_equal(o1, o2[0])
 
 

@@ -10,8 +10,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hexsos_plugins.elements import ELEMENTS
-from hexsos_plugins.mesh import FACE_NODES, MIRROR, Mesh
+from hexsos_plugins.cells.elements import ELEMENTS
+from hexsos_plugins.io.mesh import FACE_NODES, MIRROR, Mesh
 
 gmsh = pytest.importorskip("gmsh")
 vtk = pytest.importorskip("vtk")
@@ -98,7 +98,7 @@ def test_gmsh_to_vtk_and_the_registry_agree_with_gmsh_and_vtk(name):
 def test_vtk_13_node_pyramid_agrees_on_every_face_and_differs_inside():
     """vtkQuadraticPyramid and the registry's (Gmsh's) 13-node pyramid: the same nodes at the same parametric
     coordinates, the same points on all five faces, different points inside (VTK's functions leave the pyramid
-    space: see hexsos_plugins.elements)."""
+    space: see hexsos_plugins.cells.elements)."""
     el = ELEMENTS["pyramid13"]
     cell = vtk.vtkQuadraticPyramid()
     pcoords = np.array([cell.GetParametricCoords()[i] for i in range(39)]).reshape(13, 3)

@@ -24,11 +24,11 @@ def test_two_threads_run_in_the_kernel_and_agree(sample):
     from hexsos_plugins import kernel
 
     P, H, ref = sample
-    kernel.last_threads = set()
+    kernel.last_threads.clear()
     two = hs.check(P, H, jobs=2)
     assert len(kernel.last_threads) == 2  # the kernel's chunks really ran on two threads
     _same(ref, two)
-    kernel.last_threads = set()
+    kernel.last_threads.clear()
     hs.check(P, H, jobs=1)
     assert kernel.last_threads == set()  # one thread: inline, no pool
 
@@ -38,7 +38,7 @@ def test_sos_on_two_threads_agrees_bit_for_bit(monkeypatch):
     thread, and every array is the single-threaded one; with jobs=1 no SOS thread is started."""
     import threading
 
-    from hexsos_plugins import sos
+    from hexsos_plugins.kernel import sos
 
     P, H = hexes_to_mesh(random_hexes(64, sigma=0.3, seed=62))
     seen = set()
@@ -104,13 +104,14 @@ def test_dask_local_cluster_client_and_address(sample):
 def test_cli_jobs_and_processes_reach_the_kernel(tmp_path, capsys, monkeypatch):
     import meshio
 
-    from hexsos_plugins import certify, parallel
+    from hexsos_plugins import kernel
+    from hexsos_plugins.certify import parallel
 
     P, H = hexes_to_mesh(random_hexes(3000, seed=62))
     path = tmp_path / "m.vtu"
     meshio.write(path, meshio.Mesh(P, [("hexahedron", H)]))
     seen = {}
-    threads, make = certify._threads, parallel.executor
+    threads, make = kernel.threads_for, parallel.executor
 
     def spy_threads(jobs):
         seen["threads"] = jobs
@@ -120,7 +121,7 @@ def test_cli_jobs_and_processes_reach_the_kernel(tmp_path, capsys, monkeypatch):
         seen["processes"] = processes
         return make(processes, scheduler)
 
-    monkeypatch.setattr(certify, "_threads", spy_threads)
+    monkeypatch.setattr(kernel, "threads_for", spy_threads)
     monkeypatch.setattr(parallel, "executor", spy_executor)
     assert cli.main(["check", str(path), "--jobs", "2", "--processes", "2", "--json"]) == 1
     out = capsys.readouterr().out
@@ -132,11 +133,11 @@ def test_repair_on_processes_and_dask_matches_the_serial_repair():
     from comparison.bench_repair import perturbed_ring
     import importlib
 
-    repair_paper = importlib.import_module("hexsos_plugins.repair_paper")  # the module (the package exports a function of that name)
+    repair_paper = importlib.import_module("hexsos_plugins.meshrepair.paper")
 
     P, H = perturbed_ring(12)  # 174 invalid hexes: the paper's first iterations are spread over the workers
     ref = hs.repair(P, H, method="paper")
-    assert ref.success and ref.stats["invalid_before"] >= 2 * repair_paper._PARALLEL_MIN
+    assert ref.success and ref.stats["invalid_before"] >= 2 * repair_paper.PARALLEL_MIN
     two = hs.repair(P, H, method="paper", jobs=2)
     assert two.success and two.stats["outer_iterations"] == ref.stats["outer_iterations"]
     assert np.allclose(two.points, ref.points, rtol=0, atol=1e-9)

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from hexsos_plugins.errors import InvalidInputError
-from hexsos_plugins.quality import IDEAL, sample_scaled_jacobians, scaled_jacobian, summary
+from hexsos_plugins.cells.quality import IDEAL, sample_scaled_jacobians, scaled_jacobian, summary
 
 vtk = pytest.importorskip("vtk")
 from vtk.util.numpy_support import numpy_to_vtk, vtk_to_numpy  # noqa: E402

@@ -18,11 +18,11 @@ import numpy as np
 import pytest
 
 import hexsos_plugins.io as hio
-from hexsos_plugins.elements import ELEMENTS
+from hexsos_plugins.cells.elements import ELEMENTS
 from hexsos_plugins.errors import HexsosError, MeshFormatError
-from hexsos_plugins.mesh import MIRROR, Mesh
-from hexsos_plugins.readers import readers_for
-from hexsos_plugins.readers.msh_binary import read_msh_binary
+from hexsos_plugins.io.mesh import MIRROR, Mesh
+from hexsos_plugins.io.readers import readers_for
+from hexsos_plugins.io.readers.msh_binary import read_msh_binary
 
 gmsh = pytest.importorskip("gmsh")
 vtk = pytest.importorskip("vtk")
@@ -223,7 +223,7 @@ def test_gmsh_vtk_files_with_linear_prisms_are_reported_mirrored(gm, monkeypatch
     functions, vtkMeshQuality and vtkCellValidator call those cells inverted. hexsos reads the file's order and
     reports the wedges as left-handed (per type), on every reader path; it does not fix them unasked."""
     path = Path(gm["order1"]["vtk"])
-    monkeypatch.setattr("hexsos_plugins.readers.VTK_MIN_BYTES", 0)
+    monkeypatch.setattr("hexsos_plugins.io.readers.VTK_MIN_BYTES", 0)
     m = hio.read(path)
     assert m.reader == "vtk"
     assert m.orientations() == {"tetra": "right-handed", "pyramid": "right-handed", "wedge": "left-handed",
@@ -417,7 +417,7 @@ def test_numpy_msh_reader_refuses_truncated_files_and_declines_others(gm, tmp_pa
     with pytest.raises(Exception, match="declines"):
         read_msh_binary(Path(gm["order1"]["41"]))  # ASCII: meshio's and Gmsh's
     # negative case: the whole file reads, and agrees with Gmsh's reader
-    from hexsos_plugins.readers.gmsh_api import read_gmsh_api
+    from hexsos_plugins.io.readers.gmsh_api import read_gmsh_api
 
     assert_same_mesh(read_msh_binary(Path(gm["order1"]["41b"])), read_gmsh_api(Path(gm["order1"]["41b"])))
 
@@ -429,7 +429,7 @@ def test_numpy_msh_reader_keeps_nothing_of_the_mapped_file(gm, tmp_path, monkeyp
     of the mapping is read again from a copy (the fallback is exercised by a parse that leaks one)."""
     import shutil
 
-    from hexsos_plugins.readers import msh_binary
+    from hexsos_plugins.io.readers import msh_binary
 
     path = tmp_path / f"m_{suffix}.msh"
     shutil.copy(gm["order2"][suffix], path)
@@ -445,7 +445,7 @@ def test_numpy_msh_reader_keeps_nothing_of_the_mapped_file(gm, tmp_path, monkeyp
     assert np.array_equal(m.points, keep["points"])
     # negative case: a parse that returns a view of the mapping is caught, and the mesh is read from a copy
     path.write_bytes(raw)
-    real = msh_binary._parse
+    real = msh_binary.parse
     leaked = []
 
     def leaky(buf):
@@ -455,13 +455,13 @@ def test_numpy_msh_reader_keeps_nothing_of_the_mapped_file(gm, tmp_path, monkeyp
             leaked.append(True)
         return mesh
 
-    monkeypatch.setattr(msh_binary, "_parse", leaky)
+    monkeypatch.setattr(msh_binary, "parse", leaky)
     again = read_msh_binary(path)
     assert leaked and np.array_equal(again.points, keep["points"])
 
 
 def test_gmsh_reader_is_not_tried_on_a_binary_file_the_numpy_reader_found_broken(gm, tmp_path, monkeypatch):
-    import hexsos_plugins.readers as readers
+    import hexsos_plugins.io.readers as readers
 
     calls = []
     real = readers.read_gmsh_api
@@ -479,15 +479,15 @@ def test_gmsh_reader_is_not_tried_on_a_binary_file_the_numpy_reader_found_broken
     with pytest.raises(HexsosError):
         hio.read(cut)
     assert calls == [cut]
-    monkeypatch.setattr(readers, "_via_meshio", lambda q, f: (_ for _ in ()).throw(readers._ParseError("no")))
-    monkeypatch.setattr(readers, "read_msh_binary", lambda q: (_ for _ in ()).throw(readers._ParseError(
+    monkeypatch.setattr(readers, "via_meshio", lambda q, f: (_ for _ in ()).throw(readers.ParseError("no")))
+    monkeypatch.setattr(readers, "read_msh_binary", lambda q: (_ for _ in ()).throw(readers.ParseError(
         "the numpy MSH reader declines this file: test")))
     m = hio.read(gm["order1"]["41b"])
     assert m.reader == "gmsh" and len(calls) == 2
 
 
 def test_gmsh_reader_leaves_no_session_and_declines_a_running_one(gm):
-    from hexsos_plugins.readers.gmsh_api import read_gmsh_api
+    from hexsos_plugins.io.readers.gmsh_api import read_gmsh_api
 
     read_gmsh_api(Path(gm["order1"]["41"]))
     assert not gmsh.isInitialized()
@@ -502,7 +502,7 @@ def test_gmsh_reader_leaves_no_session_and_declines_a_running_one(gm):
 
 
 def test_vtk_and_meshio_read_vtu_alike(gm, tmp_path, monkeypatch):
-    monkeypatch.setattr("hexsos_plugins.readers.VTK_MIN_BYTES", 0)
+    monkeypatch.setattr("hexsos_plugins.io.readers.VTK_MIN_BYTES", 0)
     src = hio.read(gm["order2i"]["41b"])
     path = tmp_path / "a.vtu"
     hio.write(src.to_meshio(cell_data={"r": np.arange(src.n_cells, dtype=float)}), path)
@@ -510,7 +510,7 @@ def test_vtk_and_meshio_read_vtu_alike(gm, tmp_path, monkeypatch):
     assert set(via) == {"vtk", "meshio"}
     assert_same_mesh(via["vtk"], via["meshio"])
     assert hio.read(path).reader == "vtk"
-    monkeypatch.setattr("hexsos_plugins.readers.vtk_api._AVAILABLE", False)
+    monkeypatch.setattr("hexsos_plugins.io.readers.vtk_api._AVAILABLE", False)
     assert hio.read(path).reader == "meshio"
 
 
@@ -527,5 +527,5 @@ def test_vtk_reader_only_where_it_pays(tmp_path, monkeypatch):
             "print(m.reader, 'vtkmodules.vtkIOXML' in sys.modules)")
     out = subprocess.run([sys.executable, "-c", code, str(path)], capture_output=True, text=True, check=True)
     assert out.stdout.split() == ["meshio", "False"]
-    monkeypatch.setattr("hexsos_plugins.readers.VTK_MIN_BYTES", 0)
+    monkeypatch.setattr("hexsos_plugins.io.readers.VTK_MIN_BYTES", 0)
     assert hio.read(path).reader == "vtk"  # negative case: above the threshold VTK reads it

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 import hexsos_plugins.io as hio
+from comparison.robustness import mutate  # the one mutation helper, shared with the on-demand fuzzer
 from hexsos_plugins.errors import HexsosError
 
 #: mutated files per seed file, and the seed of the mutations
@@ -62,26 +63,6 @@ def seed_files(d):
     finally:
         gmsh.finalize()
     return paths
-
-
-def mutate(data: bytes, rng) -> bytes:
-    """A few random edits: byte flips, truncation, insertion, deletion, digit swaps."""
-    b = bytearray(data)
-    for _ in range(int(rng.integers(1, 6))):
-        kind = rng.integers(0, 5)
-        i = int(rng.integers(0, max(len(b), 1)))
-        if kind == 0 and b:
-            b[i % len(b)] = int(rng.integers(0, 256))
-        elif kind == 1:
-            b = b[:i]
-        elif kind == 2:
-            b[i:i] = rng.integers(0, 256, int(rng.integers(1, 40)), dtype=np.uint8).tobytes()
-        elif kind == 3 and b:
-            del b[i : int(rng.integers(i, len(b) + 1))]
-        elif b:
-            digits = b"0123456789-+.eE \n"
-            b[i % len(b)] = digits[int(rng.integers(0, len(digits)))]
-    return bytes(b)
 
 
 def test_readers_survive_mutated_files(tmp_path):

@@ -1,8 +1,8 @@
 """The default repair (untangle, quality, certify), its boundary modes, mixed meshes (issue 14), and its CLI.
 
 Every verdict is re-established by an independent call (``hexsos_plugins.check`` on the hexes, det J at the nodes
-of the prisms through :data:`hexsos_plugins.elements.ELEMENTS`, the scaled Jacobian through
-:mod:`hexsos_plugins.quality`), never read from the repair's own bookkeeping.
+of the prisms through :data:`hexsos_plugins.cells.elements.ELEMENTS`, the scaled Jacobian through
+:mod:`hexsos_plugins.cells.quality`), never read from the repair's own bookkeeping.
 """
 
 import json
@@ -13,13 +13,14 @@ import pytest
 
 import hexsos_plugins as hs
 from comparison.stress import graded_solid, hex_prism_block, single_fold, stress
-from hexsos_plugins import optimize as op
-from hexsos_plugins.elements import ELEMENTS
+from hexsos_plugins.meshrepair import optimize as op
+from hexsos_plugins.cells.elements import ELEMENTS
 from hexsos_plugins.errors import InvalidInputError
 from hexsos_plugins.examples import random_hexes, structured_grid
-from hexsos_plugins.hexahedron import det_bernstein, det_vertex_gradient
-from hexsos_plugins.mesh import hexes_to_mesh
-from hexsos_plugins.quality import scaled_jacobian
+from hexsos_plugins.cells.hexahedron import det_vertex_gradient
+from hexsos_plugins.kernel import det_bernstein
+from hexsos_plugins.io.mesh import hexes_to_mesh
+from hexsos_plugins.cells.quality import scaled_jacobian
 
 
 def _inverted_at_nodes(P, name, conn):
@@ -30,9 +31,9 @@ def _inverted_at_nodes(P, name, conn):
 def _not_valid(P, name, conn):
     """The independent count the repair must match: the kernel's verdict over the whole cell when it certifies
     this type, else det J at the nodes."""
-    from hexsos_plugins.meshrepair import _kernel_accepts_cells
+    from hexsos_plugins.meshrepair.driver import kernel_accepts_cells
 
-    if _kernel_accepts_cells():
+    if kernel_accepts_cells():
         return hs.check(P, [(name, conn)]).status != 1
     return _inverted_at_nodes(P, name, conn)
 
@@ -97,7 +98,7 @@ def graded():
 
 
 def test_stress_test_untangled_certified_quality_and_boundary_on_surface(graded):
-    from hexsos_plugins.boundary import boundary_model
+    from hexsos_plugins.meshrepair.boundary import boundary_model
 
     P, H = graded
     Q = stress(P, H, frac=0.9, amp=1.0, seed=3)
@@ -125,7 +126,7 @@ def test_stress_test_untangled_certified_quality_and_boundary_on_surface(graded)
 def test_heavy_stress_test_untangled_by_smoothing_then_certified():
     # 80% of the interior vertices moved by up to an edge length (the benchmark's graded20 stress 80%, smaller):
     # Laplacian sweeps untangle it before the barrier, and the result is certified with a high minimum
-    from hexsos_plugins.meshrepair import _smooth_untangle
+    from hexsos_plugins.meshrepair.driver import smooth_untangle
 
     P, H = graded_solid(8)
     Q = stress(P, H, frac=0.8, amp=1.0, seed=8)
@@ -139,13 +140,13 @@ def test_heavy_stress_test_untangled_by_smoothing_then_certified():
     prob = op.Problem(Q, [("hexahedron", H)], [np.ones(len(H))], np.ones(len(Q), bool))
     movable = np.zeros(len(Q), bool)
     movable[: len(Q) // 2] = True
-    V, bad, kept = _smooth_untangle(Q, [("hexahedron", H)], movable, prob.bad_cells)
+    V, bad, kept = smooth_untangle(Q, [("hexahedron", H)], movable, prob.bad_cells)
     assert np.array_equal(V[~movable], Q[~movable])
     assert bad[0].sum() <= prob.bad_cells(Q)[0].sum() and (kept == 0) == np.array_equal(V, Q)
 
 
 def test_fixed_boundary_is_exactly_fixed_and_free_moves_it(graded):
-    from hexsos_plugins.boundary import boundary_model
+    from hexsos_plugins.meshrepair.boundary import boundary_model
 
     P, H = graded
     Q = stress(P, H, frac=0.6, amp=0.8, seed=5)
@@ -256,7 +257,7 @@ def test_mixed_mesh_paper_method_pins_prism_nodes_where_that_suffices_and_says_w
     P0, _ = hex_prism_block(5, amp=0.0)
     Q = P0.copy()
     far = np.flatnonzero(~np.isin(np.arange(len(P0)), W) & ~np.isin(np.arange(len(P0)),
-                                                                    hs.meshrepair.boundary_vertex_mask(H, len(P0))))
+                                                                    hs.meshrepair.paper.boundary_vertex_mask(H, len(P0))))
     Q[far[:3]] += [0.3, 0.0, 0.0]
     assert (hs.check(Q, H).status != 1).any() and not _not_valid(Q, "wedge", W).any()
     r = hs.repair(Q, H, cells=[("wedge", W)], method="paper")

@@ -5,8 +5,9 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from hexsos_plugins import hexahedron as hx
-from hexsos_plugins import sos
+from hexsos_plugins.cells import hexahedron as hx
+from hexsos_plugins import kernel
+from hexsos_plugins.kernel import sos
 from hexsos_plugins.examples import inside_invalid_hex, random_hexes, unit_cube
 from oracle import dense_min
 
@@ -62,7 +63,7 @@ def test_a_wrong_psd_layout_is_caught():
 def test_relaxations_on_the_fixtures(relaxation):
     S = sos.SOSSolver(relaxation=relaxation)
     for X, value, where in [(unit_cube(), 1.0, None), (inside_invalid_hex(), -0.19927623, (1.0, 0.0, 0.468061))]:
-        B, err = hx.det_bernstein(X)
+        B, err = kernel.det_bernstein(X)
         C = hx.bernstein_to_monomial(B)[:, 0]
         r = S.solve(C, scale=np.abs(B).max())
         assert r.solved
@@ -85,7 +86,7 @@ def test_relaxation_registry_has_no_unbounded_member():
 
 def test_certified_lower_bound_is_sound_and_tight_on_random_hexes():
     X = random_hexes(40, sigma=0.5, seed=31)
-    B, err = hx.det_bernstein(X)
+    B, err = kernel.det_bernstein(X)
     C = hx.bernstein_to_monomial(B)
     dense, _, _ = dense_min(X)
     S = sos.SOSSolver()
@@ -99,7 +100,7 @@ def test_certified_lower_bound_is_sound_and_tight_on_random_hexes():
 
 def test_certificate_rejects_a_tampered_lambda():
     X = random_hexes(1, seed=32)[0]
-    B, err = hx.det_bernstein(X)
+    B, err = kernel.det_bernstein(X)
     C = hx.bernstein_to_monomial(B)[:, 0]
     S = sos.SOSSolver()
     r = S.solve(C, scale=np.abs(B).max())
@@ -115,7 +116,7 @@ def test_certificate_rejects_a_tampered_lambda():
 
 def test_non_solved_status_is_reported_not_used():
     X = inside_invalid_hex()
-    B, _ = hx.det_bernstein(X)
+    B, _ = kernel.det_bernstein(X)
     C = hx.bernstein_to_monomial(B)[:, 0]
     S = sos.SOSSolver(max_iter=2)
     r = S.solve(C)
@@ -128,7 +129,7 @@ def test_batched_solves_and_certificates_equal_one_at_a_time():
     batch: the bound of a hex does not depend on its neighbours; a hex the solver cannot finish (2 iterations)
     keeps its status and is not given a bound by the others."""
     X = random_hexes(12, sigma=0.4, seed=33)
-    B, err = hx.det_bernstein(X)
+    B, err = kernel.det_bernstein(X)
     C = hx.bernstein_to_monomial(B)
     S = sos.SOSSolver()
     ce, sc = 128 * err, np.abs(B).max(axis=0)

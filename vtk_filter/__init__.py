@@ -11,7 +11,7 @@ __all__ = ["HexSOSCheckFilter", "HexSOSRepairFilter", "STATUS_NOT_A_HEX", "depen
 
 def __getattr__(name):
     if name in __all__:
-        from . import hexsos_paraview_plugin
+        from vtk_filter import hexsos_paraview_plugin
 
         return getattr(hexsos_paraview_plugin, name)
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

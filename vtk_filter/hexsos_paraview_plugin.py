@@ -18,7 +18,7 @@ it on ``PV_PLUGIN_PATH``. The filters "HexSOS Check" and "HexSOS Repair" appear 
 ``vtk_filter/__init__.py`` only defines lazy attributes (loading it registers nothing and runs no code).
 
 How ParaView's Python finds the kernel and its dependencies (numpy, scipy, clarabel, meshio). ``hexsos paraview``
-(:mod:`hexsos_plugins.cli_doors`) starts ParaView with this plugin loaded and hands it the ``sys.path`` of the
+(:mod:`hexsos_plugins.cli.doors`) starts ParaView with this plugin loaded and hands it the ``sys.path`` of the
 Python it runs in: nothing to set. Loaded any other way (by hand in the GUI, ``PV_PLUGIN_PATH``, ``LoadPlugin``
 in a script) this file *appends* (never prepends: a virtual environment first on ``sys.path`` makes ParaView
 load PyPI's ``vtkmodules`` and crash) to ``sys.path``, in this order, the directories that exist of
@@ -113,7 +113,7 @@ STATUS_NOT_A_HEX = -2
 
 _HERE = os.path.dirname(os.path.abspath(__file__))
 _RECORD_NAME = os.path.join("hexsos", "paraview-paths.txt")
-#: Written by every ``hexsos`` command (``hexsos_plugins.cli_doors.record_environment``), read here.
+#: Written by every ``hexsos`` command (``hexsos_plugins.cli.doors.record_environment``), read here.
 _ENVIRONMENTS_NAME = os.path.join("hexsos", "environments.json")
 
 
@@ -198,7 +198,7 @@ def dependency_paths() -> list:
     return out
 
 
-def _version_note() -> str:
+def version_note() -> str:
     """What the recorded environments say about Python versions, when none matches this Python ('' if one does)."""
     envs = recorded_environments()
     if not envs:
@@ -241,7 +241,7 @@ def _kernel(*submodules):
         for name in ("scipy.optimize", "clarabel") + tuple(f"hexsos_plugins.{m}" for m in submodules):
             importlib.import_module(name)
     except ImportError as exc:
-        note = _version_note()
+        note = version_note()
         raise _KernelUnavailable(
             f"cannot import the hexsos kernel in this Python {sys.version.split()[0]} ({sys.executable}): "
             f"{type(exc).__name__}: {exc}. " + (note + ". " if note else "")
@@ -349,13 +349,11 @@ def _spread(values, cell_ids, n_cells, fill):
 
 
 def _add_result_cell_arrays(out, result, cell_ids):
-    """Write ``result.cell_data()`` (and ``hexsos_scaled_jacobian`` when the result carries it) onto ``out``'s
+    """Write ``result.cell_data()`` onto ``out``'s
     cell data, cell ``cell_ids[m]`` getting checked cell m's values."""
     n = out.GetNumberOfCells()
     cd = out.GetCellData()
-    arrays = dict(result.cell_data())
-    if "scaled_jacobian" in getattr(result, "extra", {}):
-        arrays["hexsos_scaled_jacobian"] = result.extra["scaled_jacobian"]
+    arrays = dict(result.cell_data())  # with hexsos_scaled_jacobian where the check computed it
     for name, values in arrays.items():
         values = np.asarray(values)
         fill = STATUS_NOT_A_HEX if np.issubdtype(values.dtype, np.integer) else np.nan
@@ -504,8 +502,8 @@ class _HexSOSBase(VTKPythonAlgorithmBase):
     def _prepare(self, grid, submodule):
         """The kernel and the grid's checkable cells (see :func:`_checkable`); raises what ``RequestData``
         reports."""
-        kernel = _kernel("elements", submodule)
-        elements = sys.modules["hexsos_plugins.elements"]
+        kernel = _kernel("cells.elements", submodule)
+        elements = sys.modules["hexsos_plugins.cells.elements"]
         blocks, types = _checkable(grid, elements)
         if not blocks:
             raise kernel.NoHexahedraError(
@@ -588,10 +586,7 @@ class HexSOSCheckFilter(_HexSOSBase):
         cell_ids = np.concatenate([ids for _, _, ids in blocks])
         self.UpdateProgress(0.0)
         result = kernel.check(P, cells, method=self._method, relaxation=self._relaxation, progress=self._progress,
-                              jobs=0)  # every core, as the command line
-        from hexsos_plugins.kernel import scaled_jacobian
-
-        result.extra["scaled_jacobian"] = scaled_jacobian(P, cells)
+                              jobs=0, quality=True)  # every core, as the command line; the scaled Jacobian too
         out.ShallowCopy(inp)
         _add_result_cell_arrays(out, result, cell_ids)
         _add_summary(out, "hexsos_summary", result.summary())
@@ -766,6 +761,7 @@ class HexSOSRepairFilter(_HexSOSBase):
         (out,) = outputs
         _, _, blocks, types = self._prepare(inp, "meshrepair")
         from hexsos_plugins import repair
+        from hexsos_plugins.meshrepair import door_boundary
 
         P = _points(inp)
         hex_blocks = [(c, ids) for t, c, ids in blocks if t == "hexahedron"]
@@ -786,9 +782,7 @@ class HexSOSRepairFilter(_HexSOSBase):
                 idx = np.concatenate([np.arange(a, b) for a, b in zip(starts, stops)])
                 pinned[np.asarray(conn, dtype=np.int64)[idx]] = True
         self.UpdateProgress(0.0)
-        boundary = "fixed" if self._pin_boundary else self._boundary
-        if self._repair_method == "paper" and boundary == "slide":
-            boundary = "free"
+        boundary = door_boundary(self._boundary, self._repair_method, self._pin_boundary)
         result = repair(P, H, cells=others or None, method=self._repair_method, boundary=boundary,
                         min_sj=self._min_sj or None, feature_angle=self._feature_angle,
                         time_limit=self._time_limit or None, rho=self._rho, margin=self._margin,

@@ -1,0 +1,148 @@
+"""meshio's conventions, as hexsos meets them in reading and writing: its printed output captured, the
+dimensions of the cell types it does not know, and the node-order corrections of its format modules.
+
+Node orders: hexsos holds every cell block in VTK's node order (the element registry,
+:mod:`hexsos_plugins.cells.elements`), which is also meshio's own convention for every type. meshio 5.3.5 deviates
+in two places, measured against VTK 9.7's own shape functions and Gmsh 4.15's reference elements:
+
+* its VTK readers and writers (``vtk``, ``vtu``) swap the linear wedge's nodes ``(0, 2, 1, 3, 5, 4)``, following
+  ``vtkWedge``'s documentation rather than its code: VTK's shape functions, ``vtkMeshQuality`` (volume) and
+  ``vtkCellValidator`` all call the wedge whose nodes sit at VTK's parametric coordinates valid, and its
+  mirror invalid. So meshio mirrors every wedge it reads from or writes to a VTK file; hexsos undoes it on
+  reading (:func:`fix_read_order`) and redoes it before meshio writes (:func:`fix_write_order`), so the
+  file's own node order is what the kernel sees and what is written.
+* its Gmsh reader and writer have no permutation for ``wedge18`` (Gmsh's 18-node prism numbers its edge and
+  face nodes differently from ``vtkBiQuadraticQuadraticWedge``); hexsos applies the registry's
+  ``gmsh_to_vtk`` on reading and its inverse before writing. (``tetra10``, ``wedge15``, ``hexahedron20`` and
+  ``hexahedron27`` meshio permutes as the registry does.)
+
+Imports the cells wing only; used by the readers and the writers alike.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io as _stdio
+import re
+import warnings as _warnings
+
+import meshio
+import numpy as np
+
+from ..cells.elements import ELEMENTS
+
+__all__ = ["quiet_meshio", "shorten", "DIMS", "meshio_dimensions", "WEDGE_SWAP", "fix_read_order", "fix_write_order"]
+
+
+@contextlib.contextmanager
+def quiet_meshio():
+    """Capture what meshio prints (it prints errors and warnings) and silence Python warnings."""
+    out, err = _stdio.StringIO(), _stdio.StringIO()
+    log = []
+    with _warnings.catch_warnings():
+        _warnings.simplefilter("ignore")
+        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+            try:
+                yield log
+            finally:
+                log.extend(split_messages(out.getvalue() + "\n" + err.getvalue()))
+
+
+def split_messages(text: str) -> list:
+    """meshio's rich console output, one message per 'Warning:' / 'Info:' / 'Error:', lines joined."""
+    text = " ".join(text.split())
+    if not text:
+        return []
+    parts = re.split(r"(?=\b(?:Warning|Info|Error):)", text)
+    return [p.strip() for p in parts if p.strip()]
+
+
+
+def shorten(msg: str, limit: int = 240) -> str:
+    msg = " ".join(str(msg).split())
+    return msg if len(msg) <= limit else msg[: limit - 3] + "..."
+
+
+
+DIMS = {"vertex": 0, "line": 1, "line3": 1, "line4": 1, "triangle": 2, "quad": 2, "polygon": 2, "triangle6": 2,
+         "triangle7": 2, "quad8": 2, "quad9": 2, "quad6": 2}
+
+
+def _missing_dimensions() -> dict:
+    """Cell types meshio 5.3.5's format modules know but its table of topological dimensions lacks (``wedge15``,
+    ``pyramid13``, ...): its CellBlock constructor raises KeyError for them, which makes meshio fail on MSH 4.1
+    and VTU files holding them."""
+    from meshio._mesh import topological_dimension as table
+
+    names = set()
+    with contextlib.suppress(Exception):
+        from meshio._vtk_common import vtk_to_meshio_type
+
+        names |= set(vtk_to_meshio_type.values())
+    with contextlib.suppress(Exception):
+        from meshio.gmsh.common import _gmsh_to_meshio_type
+
+        names |= set(_gmsh_to_meshio_type.values())
+    out = {}
+    for t in names - set(table):
+        if t.startswith(("tetra", "hexahedron", "wedge", "pyramid", "polyhedron")):
+            out[t] = 3
+        elif t.startswith(("line", "vertex")):
+            out[t] = 0 if t.startswith("vertex") else 1
+        else:
+            out[t] = 2
+    return out
+
+
+@contextlib.contextmanager
+def meshio_dimensions(extra=()):
+    """Within: meshio's table of topological dimensions holds every cell type its formats know (and ``extra``
+    names); restored afterwards."""
+    from meshio._mesh import topological_dimension as table
+
+    add = _missing_dimensions()
+    for t in extra:
+        if t not in table and t not in add:
+            add[t] = 3 if t.startswith(("tetra", "hexahedron", "wedge", "pyramid", "polyhedron", "voxel")) \
+                else DIMS.get(t, 2)
+    for t, d in add.items():
+        table[t] = d
+    try:
+        yield
+    finally:
+        for t in add:
+            table.pop(t, None)
+
+
+
+WEDGE_SWAP = np.array([0, 2, 1, 3, 5, 4])
+#: Gmsh's 18-node prism to VTK's (``vtk = gmsh[:, WEDGE18_G2V]``) and back.
+WEDGE18_G2V = np.array(ELEMENTS["wedge18"].gmsh_to_vtk)
+WEDGE18_V2G = np.argsort(WEDGE18_G2V)
+_VTK_FORMATS = ("vtk", "vtu", "vtk42", "vtk51")
+_GMSH_FORMATS = ("gmsh", "gmsh22", "gmsh4", "gmsh41")
+
+
+def _permute(mesh: meshio.Mesh, cell_type: str, perm: np.ndarray) -> None:
+    for block in mesh.cells:
+        if block.type == cell_type and len(block.data):
+            block.data = np.ascontiguousarray(np.asarray(block.data)[:, perm])
+
+
+def fix_read_order(mesh: meshio.Mesh, fmt: str) -> meshio.Mesh:
+    """Blocks of a mesh meshio just read as ``fmt``, in place, in VTK node order (see the module docstring)."""
+    if fmt in _VTK_FORMATS:
+        _permute(mesh, "wedge", WEDGE_SWAP)
+    elif fmt in _GMSH_FORMATS:
+        _permute(mesh, "wedge18", WEDGE18_G2V)
+    return mesh
+
+
+def fix_write_order(mesh: meshio.Mesh, fmt: str) -> meshio.Mesh:
+    """Blocks of a private copy (VTK node order), in place, in the order meshio's ``fmt`` writer expects so that
+    the file comes out in the format's own order."""
+    if fmt in _VTK_FORMATS:
+        _permute(mesh, "wedge", WEDGE_SWAP)
+    elif fmt in _GMSH_FORMATS:
+        _permute(mesh, "wedge18", WEDGE18_V2G)
+    return mesh

@@ -1,0 +1,19 @@
+"""The repair wing: hand back a mesh a solver can use, certified by the kernel.
+
+Owns: the default method's driver (:mod:`.driver`: untangle, raise the quality, certify, fall back to the
+paper's method), its energies and their compiled loops (:mod:`.optimize`, :mod:`.kernels`), the boundary model
+(:mod:`.boundary`: surface, features, sliding), the paper's Algorithms 1 and 2 (:mod:`.paper`), the one result
+type (:mod:`.result`), the options and the one rule for their defaults (:mod:`.options`), the boundary's distance
+to the input (:mod:`.fidelity`) and the BLAS thread cap (:mod:`.blas`).
+
+May import: the certify, kernel and cells wings, :class:`hexsos_plugins.io.mesh` helpers (mesh topology) and
+:mod:`hexsos_plugins.errors`. Never the command line or the doors: they call :func:`repair`.
+"""
+
+from .driver import check_cells, repair, repair_hex, repair_paper
+from .options import (BOUNDARY_MODES, DEFAULT_MARGIN, DEFAULT_RHO, METHODS, default_boundary, door_boundary,
+                      resolve_boundary)
+from .result import RepairResult
+
+__all__ = ["repair", "repair_hex", "repair_paper", "RepairResult", "check_cells", "METHODS", "BOUNDARY_MODES",
+           "DEFAULT_MARGIN", "DEFAULT_RHO", "default_boundary", "resolve_boundary", "door_boundary"]

@@ -1,0 +1,204 @@
+"""The boundary surface of a volume mesh, its feature edges and corners, and projection back onto it.
+
+Used by the repair with ``boundary="slide"``: boundary vertices may move, but stay on the input's boundary
+surface, vertices on feature edges stay on their feature curves, and feature corners stay where they are.
+
+* Boundary faces: the faces (triangles, quads; corner nodes) of the 3-D cells that belong to one cell only,
+  oriented outward for positively oriented cells (:attr:`hexsos_plugins.cells.elements.Element.faces`).
+* Feature edges: boundary edges whose two boundary faces meet at an angle between their normals larger than
+  ``feature_angle`` (degrees; default 45), and boundary edges not shared by exactly two boundary faces.
+* Vertex kinds: *surface* (no feature edge), *curve* (exactly two feature edges), *corner* (one, or three or
+  more: the ends and junctions of feature curves), pinned.
+
+Projection uses libigl's exact point-to-simplex distance (``igl.point_mesh_squared_distance``, an AABB tree)
+onto the input's boundary triangles (quads split along their 0-2 diagonal, as :mod:`hexsos_plugins.meshrepair.fidelity`
+does) for surface vertices, and onto the input's feature segments for curve vertices.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..cells.elements import ELEMENTS
+from ..errors import DependencyError
+
+__all__ = ["boundary_faces", "BoundaryModel", "boundary_model", "Slide"]
+
+
+def _faces_of(cells):
+    """All corner faces of the cells: (tris (T, 3), quads (Q, 4)) with the cell each comes from."""
+    tris, quads = [], []
+    for name, conn in cells:
+        el = ELEMENTS.get(name)
+        if el is None or conn.shape[0] == 0:
+            continue
+        for f in el.faces:
+            (tris if len(f) == 3 else quads).append(conn[:, list(f)])
+    T = np.concatenate(tris) if tris else np.zeros((0, 3), dtype=np.int64)
+    Q = np.concatenate(quads) if quads else np.zeros((0, 4), dtype=np.int64)
+    return T, Q
+
+
+def _once(F):
+    if F.shape[0] == 0:
+        return F
+    key = np.sort(F, axis=1)
+    _, inv, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    return F[counts[inv.ravel()] == 1]
+
+
+def boundary_faces(cells):
+    """The boundary faces of ``cells`` (list of (type, conn), VTK order): (tris (T, 3), quads (Q, 4))."""
+    T, Q = _faces_of(cells)
+    return _once(T), _once(Q)
+
+
+def _triangles(tris, quads):
+    return np.concatenate([tris, quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]]).astype(np.int64)
+
+
+@dataclass
+class Slide:
+    """The boundary penalty of the optimizer: vertices ``idx`` pay ``w |Q (x - ref)|^2 / s2``."""
+
+    idx: np.ndarray
+    Q: np.ndarray
+    ref: np.ndarray
+    s2: np.ndarray
+
+
+@dataclass
+class BoundaryModel:
+    """The input's boundary: vertex kinds, normals / tangents, and the surface to project onto."""
+
+    vertices: np.ndarray  # (B,) boundary vertex indices
+    kind: np.ndarray  # (B,) 0 surface, 1 curve, 2 corner
+    normal: np.ndarray  # (B, 3) unit normals (surface vertices)
+    tangent: np.ndarray  # (B, 3) unit tangents (curve vertices)
+    size: np.ndarray  # (B,) mean length of the boundary edges at the vertex
+    surf_V: np.ndarray  # (n, 3) input coordinates
+    surf_F: np.ndarray  # (T, 3) boundary triangles
+    feat_E: np.ndarray  # (E, 2) feature segments
+    feature_edges: int
+
+    @property
+    def corners(self) -> np.ndarray:
+        return self.vertices[self.kind == 2]
+
+    def slide(self, V, movable) -> Slide:
+        """The penalty terms of the boundary vertices that may move (``movable`` (N,) bool), not corners."""
+        keep = (self.kind < 2) & movable[self.vertices]
+        idx = self.vertices[keep]
+        n, t = self.normal[keep], self.tangent[keep]
+        Q = np.where((self.kind[keep] == 0)[:, None, None], n[:, :, None] * n[:, None, :],
+                     np.eye(3)[None] - t[:, :, None] * t[:, None, :])
+        return Slide(idx=idx, Q=Q, ref=np.array(V[idx], dtype=np.float64), s2=np.maximum(self.size[keep], 1e-300) ** 2)
+
+    def project(self, V, idx=None) -> np.ndarray:
+        """V with the (given, else all) surface and curve vertices moved to the nearest input surface / curve."""
+        igl = _igl()
+        W = np.array(V, dtype=np.float64, copy=True)
+        sel = np.ones(self.vertices.size, dtype=bool) if idx is None else np.isin(self.vertices, idx)
+        for kind, F in ((0, self.surf_F), (1, self.feat_E)):
+            rows = self.vertices[(self.kind == kind) & sel]
+            if rows.size == 0 or F.shape[0] == 0:
+                continue
+            _, _, C = igl.point_mesh_squared_distance(np.ascontiguousarray(W[rows]), self.surf_V,
+                                                      np.ascontiguousarray(F, dtype=np.int64))
+            W[rows] = C
+        return W
+
+    def distance(self, V, idx=None) -> np.ndarray:
+        """Distance of the boundary vertices (or ``idx``) to the input surface."""
+        igl = _igl()
+        rows = self.vertices if idx is None else np.asarray(idx)
+        if rows.size == 0:
+            return np.zeros(0)
+        d2, _, _ = igl.point_mesh_squared_distance(np.ascontiguousarray(V[rows], dtype=np.float64), self.surf_V,
+                                                   np.ascontiguousarray(self.surf_F, dtype=np.int64))
+        return np.sqrt(d2)
+
+
+def _igl():
+    try:
+        import igl
+    except ImportError as exc:
+        raise DependencyError("boundary='slide' projects onto the input surface with libigl: pip install libigl "
+                              "(or repair with boundary='fixed' / 'free')") from exc
+    return igl
+
+
+def boundary_model(points, cells, *, feature_angle: float = 45.0) -> BoundaryModel:
+    """Analyse the boundary of ``cells`` (list of (type, conn)) at ``points`` (the input)."""
+    P = np.asarray(points, dtype=np.float64)
+    tris, quads = boundary_faces(cells)
+    faces = [f for f in (tris, quads) if f.shape[0]]
+    tri = _triangles(tris, quads)
+    # face normals (quads: cross product of the diagonals), area-weighted vertex normals
+    fn = []
+    if tris.shape[0]:
+        a, b, c = P[tris[:, 0]], P[tris[:, 1]], P[tris[:, 2]]
+        fn.append(0.5 * np.cross(b - a, c - a))
+    if quads.shape[0]:
+        fn.append(0.5 * np.cross(P[quads[:, 2]] - P[quads[:, 0]], P[quads[:, 3]] - P[quads[:, 1]]))
+    fn = np.concatenate(fn) if fn else np.zeros((0, 3))
+    allf = np.concatenate([np.pad(tris, ((0, 0), (0, 1)), constant_values=-1), quads]) if faces else np.zeros((0, 4), int)
+    verts = np.unique(allf[allf >= 0])
+    N = P.shape[0]
+    vn = np.zeros((N, 3))
+    for k in range(4):
+        col = allf[:, k]
+        ok = col >= 0
+        for a in range(3):
+            vn[:, a] += np.bincount(col[ok], weights=fn[ok, a], minlength=N)
+    # boundary edges and the faces on each side (faces numbered: triangles first, then quads)
+    e_list, f_list = [], []
+    for F, off in ((tris, 0), (quads, tris.shape[0])):
+        k = F.shape[1]
+        for j in range(k):
+            e_list.append(np.sort(F[:, [j, (j + 1) % k]], axis=1))
+            f_list.append(off + np.arange(F.shape[0]))
+    E = np.concatenate(e_list) if e_list else np.zeros((0, 2), dtype=np.int64)
+    Fi = np.concatenate(f_list) if f_list else np.zeros(0, dtype=np.int64)
+    uniq, inv, counts = np.unique(E, axis=0, return_inverse=True, return_counts=True)
+    inv = inv.ravel()
+    order = np.argsort(inv, kind="stable")
+    starts = np.concatenate([[0], np.cumsum(counts)])
+    unit = fn / np.maximum(np.linalg.norm(fn, axis=1, keepdims=True), 1e-300)
+    feature = counts != 2
+    two = np.flatnonzero(counts == 2)
+    f1 = Fi[order[starts[two]]]
+    f2 = Fi[order[starts[two] + 1]]
+    cosang = (unit[f1] * unit[f2]).sum(axis=1)
+    feature[two] = cosang < np.cos(np.radians(feature_angle))
+    feat = uniq[feature]
+    nfeat = np.bincount(feat.ravel(), minlength=N)
+    kind = np.where(nfeat[verts] == 0, 0, np.where(nfeat[verts] == 2, 1, 2))
+    # tangents of curve vertices: from the two feature edges
+    tangent = np.zeros((verts.size, 3))
+    curve = np.flatnonzero(kind == 1)
+    if curve.size:
+        pos = np.full(N, -1)
+        pos[verts[curve]] = np.arange(curve.size)
+        acc = np.zeros((curve.size, 3))
+        cnt = np.zeros(curve.size, dtype=int)
+        for a, b in feat:
+            for u, v in ((a, b), (b, a)):
+                i = pos[u]
+                if i >= 0:
+                    d = P[v] - P[u]
+                    d /= max(np.linalg.norm(d), 1e-300)
+                    acc[i] += d if cnt[i] == 0 else -d
+                    cnt[i] += 1
+        tangent[curve] = acc / np.maximum(np.linalg.norm(acc, axis=1, keepdims=True), 1e-300)
+    normal = vn[verts] / np.maximum(np.linalg.norm(vn[verts], axis=1, keepdims=True), 1e-300)
+    # local size: mean boundary edge length at each vertex
+    el = np.linalg.norm(P[uniq[:, 0]] - P[uniq[:, 1]], axis=1)
+    ssum = np.bincount(uniq.ravel(), weights=np.repeat(el, 2), minlength=N)
+    scnt = np.bincount(uniq.ravel(), minlength=N)
+    size = ssum[verts] / np.maximum(scnt[verts], 1)
+    return BoundaryModel(vertices=verts, kind=kind, normal=normal, tangent=tangent, size=size,
+                         surf_V=np.ascontiguousarray(P), surf_F=np.ascontiguousarray(tri),
+                         feat_E=np.ascontiguousarray(feat), feature_edges=int(feat.shape[0]))

@@ -1,0 +1,426 @@
+"""Compiled (numba) energy and gradient loops of :mod:`hexsos_plugins.meshrepair.optimize`.
+
+Each loop runs over the cells of one block and, per cell, over its samples ``E_k = X^T G_k`` (3x3), and adds
+its gradient straight into the vertex gradient ``g`` (N, 3). IEEE double precision, no fast-math. The
+vectorized numpy expressions in :mod:`hexsos_plugins.meshrepair.optimize` compute the same numbers (tested), and are
+used when numba is not installed.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit, prange
+
+
+@njit(cache=True, inline="always")
+def _cof(J, C):
+    C[0, 0] = J[1, 1] * J[2, 2] - J[1, 2] * J[2, 1]
+    C[0, 1] = J[1, 2] * J[2, 0] - J[1, 0] * J[2, 2]
+    C[0, 2] = J[1, 0] * J[2, 1] - J[1, 1] * J[2, 0]
+    C[1, 0] = J[0, 2] * J[2, 1] - J[0, 1] * J[2, 2]
+    C[1, 1] = J[0, 0] * J[2, 2] - J[0, 2] * J[2, 0]
+    C[1, 2] = J[0, 1] * J[2, 0] - J[0, 0] * J[2, 1]
+    C[2, 0] = J[0, 1] * J[1, 2] - J[0, 2] * J[1, 1]
+    C[2, 1] = J[0, 2] * J[1, 0] - J[0, 0] * J[1, 2]
+    C[2, 2] = J[0, 0] * J[1, 1] - J[0, 1] * J[1, 0]
+    return J[0, 0] * C[0, 0] + J[0, 1] * C[0, 1] + J[0, 2] * C[0, 2]
+
+
+@njit(cache=True, inline="always")
+def _sample(V, conn, m, G, k, J):
+    n = conn.shape[1]
+    for a in range(3):
+        for d in range(3):
+            acc = 0.0
+            for i in range(n):
+                gi = G[k, i, d]
+                if gi != 0.0:
+                    acc += V[conn[m, i], a] * gi
+            J[a, d] = acc
+
+
+@njit(cache=True, inline="always")
+def _scatter(g, conn, m, G, k, dE):
+    n = conn.shape[1]
+    for i in range(n):
+        v = conn[m, i]
+        for d in range(3):
+            gi = G[k, i, d]
+            if gi != 0.0:
+                for a in range(3):
+                    g[v, a] += dE[a, d] * gi
+
+
+@njit(cache=True)
+def untangle_corners(V, conn, G, s, eps, theta, g, want_grad):
+    """Stage 1 over corner samples G (K, n, 3) (ideal-cell corners folded in): returns (energy, min D)."""
+    M = conn.shape[0]
+    K = G.shape[0]
+    J = np.empty((3, 3))
+    C = np.empty((3, 3))
+    dE = np.empty((3, 3))
+    total = 0.0
+    dmin = np.inf
+    e2 = eps * eps
+    for m in range(M):
+        inv = 1.0 / s[m]
+        for k in range(K):
+            _sample(V, conn, m, G, k, J)
+            F = 0.0
+            for a in range(3):
+                for d in range(3):
+                    J[a, d] *= inv
+                    F += J[a, d] * J[a, d]
+            D = _cof(J, C)
+            if D < dmin:
+                dmin = D
+            r = np.sqrt(e2 + D * D)
+            chi = 0.5 * (D + r)
+            dchi = chi / r
+            c23 = chi ** (-2.0 / 3.0)
+            total += (1.0 - theta) * F * c23 + theta * (D * D + 1.0) / chi
+            if want_grad:
+                coef = (-(2.0 / 3.0) * (1.0 - theta) * F * c23 / chi * dchi
+                        + theta * (2.0 * D / chi - (D * D + 1.0) * dchi / (chi * chi)))
+                for a in range(3):
+                    for d in range(3):
+                        dE[a, d] = (2.0 * (1.0 - theta) * c23 * J[a, d] + coef * C[a, d]) * inv
+                _scatter(g, conn, m, G, k, dE)
+    return total, dmin
+
+
+# VTK node at parameter corner (i, j, k)
+_NODE = np.array([[[0, 4], [3, 7]], [[1, 5], [2, 6]]], dtype=np.int64)
+_W = np.array([[1.0, 0.0], [0.5, 0.5], [0.0, 1.0]])  # linear interpolation weights at 0, 1/2, 1
+
+
+@njit(cache=True)
+def _hex_grid(V, conn, m, XU, XV, XW, f):
+    """det J at {0, 1/2, 1}^3 of hex m (f[9 a + 3 b + c]); XU[b, c] = x_u at (v, w) = (b, c) / 2, etc."""
+    eu = np.empty((2, 2, 3))
+    ev = np.empty((2, 2, 3))
+    ew = np.empty((2, 2, 3))
+    _hex_grid_s(V, conn, m, XU, XV, XW, f, eu, ev, ew)
+
+
+@njit(cache=True, inline="always")
+def _hex_grid_s(V, conn, m, XU, XV, XW, f, eu, ev, ew):
+    """:func:`_hex_grid` with its scratch arrays passed in."""
+    for p in range(2):
+        for q in range(2):
+            for a in range(3):
+                eu[p, q, a] = V[conn[m, _NODE[1, p, q]], a] - V[conn[m, _NODE[0, p, q]], a]
+                ev[p, q, a] = V[conn[m, _NODE[p, 1, q]], a] - V[conn[m, _NODE[p, 0, q]], a]
+                ew[p, q, a] = V[conn[m, _NODE[p, q, 1]], a] - V[conn[m, _NODE[p, q, 0]], a]
+    for b in range(3):
+        for c in range(3):
+            for a in range(3):
+                XU[b, c, a] = 0.0
+                XV[b, c, a] = 0.0
+                XW[b, c, a] = 0.0
+                for p in range(2):
+                    for q in range(2):
+                        w = _W[b, p] * _W[c, q]
+                        if w != 0.0:
+                            XU[b, c, a] += w * eu[p, q, a]
+                            XV[b, c, a] += w * ev[p, q, a]
+                            XW[b, c, a] += w * ew[p, q, a]
+    for a in range(3):
+        for b in range(3):
+            for c in range(3):
+                u = XU[b, c]
+                v = XV[a, c]
+                w = XW[a, b]
+                f[9 * a + 3 * b + c] = (u[0] * (v[1] * w[2] - v[2] * w[1]) - u[1] * (v[0] * w[2] - v[2] * w[0])
+                                        + u[2] * (v[0] * w[1] - v[1] * w[0]))
+
+
+@njit(cache=True, inline="always")
+def _axis_T(f, stride, off0, forward):
+    # the per-axis Bernstein transform (0, 1/2, 1 values -> coefficients) or its transpose, in place
+    x0 = f[off0]
+    x1 = f[off0 + stride]
+    x2 = f[off0 + 2 * stride]
+    if forward:
+        f[off0 + stride] = 2.0 * x1 - 0.5 * (x0 + x2)
+    else:
+        f[off0] = x0 - 0.5 * x1
+        f[off0 + stride] = 2.0 * x1
+        f[off0 + 2 * stride] = x2 - 0.5 * x1
+
+
+@njit(cache=True)
+def _to_bernstein(f, forward):
+    for i in range(3):  # the three axes one after the other (each pass over the whole array)
+        for j in range(3):
+            _axis_T(f, 9, 3 * i + j, forward)  # along a
+    for i in range(3):
+        for j in range(3):
+            _axis_T(f, 3, 9 * i + j, forward)  # along b
+    for i in range(3):
+        for j in range(3):
+            _axis_T(f, 1, 9 * i + 3 * j, forward)  # along c
+
+
+@njit(cache=True)
+def _hex_grid_grad(g, conn, m, XU, XV, XW, df):
+    """Add to g the gradient of sum_q df[q] f_q (f the grid values of :func:`_hex_grid`)."""
+    gl = np.zeros((8, 3))
+    _hex_grid_grad_local(gl, XU, XV, XW, df, np.empty((3, 3, 3)), np.empty((3, 3, 3)), np.empty((3, 3, 3)))
+    for i in range(8):
+        for a in range(3):
+            g[conn[m, i], a] += gl[i, a]
+
+
+@njit(cache=True)
+def hex_bernstein(V, conn):
+    """The 27 Bernstein coefficients of det J of every hex: (M, 27)."""
+    M = conn.shape[0]
+    out = np.empty((M, 27))
+    XU = np.empty((3, 3, 3))
+    XV = np.empty((3, 3, 3))
+    XW = np.empty((3, 3, 3))
+    f = np.empty(27)
+    for m in range(M):
+        _hex_grid(V, conn, m, XU, XV, XW, f)
+        _to_bernstein(f, True)
+        out[m] = f
+    return out
+
+
+@njit(cache=True)
+def untangle_bernstein(V, conn, rows, GB, T, s, eps, theta_b, g, want_grad):
+    """Stage 1's barrier on the 27 Bernstein coefficients of the hexes ``rows``: (energy, min b / s^3)."""
+    XU = np.empty((3, 3, 3))
+    XV = np.empty((3, 3, 3))
+    XW = np.empty((3, 3, 3))
+    b = np.empty(27)
+    db = np.empty(27)
+    total = 0.0
+    bmin = np.inf
+    e2 = eps * eps
+    for r in range(rows.shape[0]):
+        m = rows[r]
+        _hex_grid(V, conn, m, XU, XV, XW, b)
+        _to_bernstein(b, True)
+        s3 = s[m] ** 3
+        for p in range(27):
+            bh = b[p] / s3
+            if bh < bmin:
+                bmin = bh
+            rr = np.sqrt(e2 + bh * bh)
+            chi = 0.5 * (bh + rr)
+            dchi = chi / rr
+            total += theta_b * (bh * bh + 1.0) / chi
+            db[p] = theta_b * (2.0 * bh / chi - (bh * bh + 1.0) * dchi / (chi * chi)) / s3
+        if want_grad:
+            _to_bernstein(db, False)
+            _hex_grid_grad(g, conn, m, XU, XV, XW, db)
+    return total, bmin
+
+
+# --- stage 2 over the cells in parallel --------------------------------------------------------------------
+# Each cell writes its energy, its minimum and its vertex gradient (n, 3) to its own rows; the sums and the scatter
+# run after, in cell order, so the result does not depend on the number of threads. The logarithms of a cell's
+# 9 gaps and of its 27 coefficients are taken of their products (one log per 1e+-150 of range): 36 logarithms
+# per hex were most of the time of a loop with one log each.
+
+_BIG = 1e150
+_SMALL = 1e-150
+
+
+@njit(cache=True, inline="always")
+def _hex_grid_grad_local(gl, XU, XV, XW, df, GU, GV, GW):
+    """As :func:`_hex_grid_grad`, into the cell's own (8, 3) rows (GU, GV, GW scratch (3, 3, 3))."""
+    GU[:] = 0.0
+    GV[:] = 0.0
+    GW[:] = 0.0
+    for a in range(3):
+        for b in range(3):
+            for c in range(3):
+                d = df[9 * a + 3 * b + c]
+                u = XU[b, c]
+                v = XV[a, c]
+                w = XW[a, b]
+                GU[b, c, 0] += d * (v[1] * w[2] - v[2] * w[1])
+                GU[b, c, 1] += d * (v[2] * w[0] - v[0] * w[2])
+                GU[b, c, 2] += d * (v[0] * w[1] - v[1] * w[0])
+                GV[a, c, 0] += d * (w[1] * u[2] - w[2] * u[1])
+                GV[a, c, 1] += d * (w[2] * u[0] - w[0] * u[2])
+                GV[a, c, 2] += d * (w[0] * u[1] - w[1] * u[0])
+                GW[a, b, 0] += d * (u[1] * v[2] - u[2] * v[1])
+                GW[a, b, 1] += d * (u[2] * v[0] - u[0] * v[2])
+                GW[a, b, 2] += d * (u[0] * v[1] - u[1] * v[0])
+    for p in range(2):
+        for q in range(2):
+            for a in range(3):
+                su = 0.0
+                sv = 0.0
+                sw = 0.0
+                for b in range(3):
+                    for c in range(3):
+                        w = _W[b, p] * _W[c, q]
+                        if w != 0.0:
+                            su += w * GU[b, c, a]
+                            sv += w * GV[b, c, a]
+                            sw += w * GW[b, c, a]
+                gl[_NODE[1, p, q], a] += su
+                gl[_NODE[0, p, q], a] -= su
+                gl[_NODE[p, 1, q], a] += sv
+                gl[_NODE[p, 0, q], a] -= sv
+                gl[_NODE[p, q, 1], a] += sw
+                gl[_NODE[p, q, 0], a] -= sw
+
+
+@njit(cache=True, parallel=True)
+def barrier_cells(V, conn, G, factor, t, s, beta, hexes, want_grad, ecell, mcell, okc, gcell):
+    """Stage 2's terms per cell: ecell (M,) energy, mcell (M,) min SJ, okc (M,) feasible,
+    gcell (M, n, 3) the cell's vertex gradient (when ``want_grad``). Returns whether every cell is feasible; when
+    not, the rows are incomplete (the work stops at the first infeasible cell of each thread's chunks)."""
+    M = conn.shape[0]
+    K = G.shape[0]
+    n = conn.shape[1]
+    # the samples' nonzero entries (a hex corner's column has 2 of 8, the centre's 8): nz[k, d] of them, vertex
+    # gi[k, d, j] with weight gv[k, d, j]
+    nz = np.zeros((K, 3), dtype=np.int64)
+    gi = np.zeros((K, 3, n), dtype=np.int64)
+    gv = np.zeros((K, 3, n))
+    for k in range(K):
+        for d in range(3):
+            for i in range(n):
+                if G[k, i, d] != 0.0:
+                    gi[k, d, nz[k, d]] = i
+                    gv[k, d, nz[k, d]] = G[k, i, d]
+                    nz[k, d] += 1
+    chunk = 256
+    stop = np.zeros(1, dtype=np.int64)  # set by the first infeasible cell: the chunks not yet started skip
+    for ch in prange((M + chunk - 1) // chunk):
+        if stop[0] == 0:
+            if not _barrier_chunk(V, conn, nz, gi, gv, factor, t, s, beta, hexes, want_grad, ecell, mcell, okc,
+                                  gcell, ch * chunk, min(M, (ch + 1) * chunk)):
+                stop[0] = 1
+    return stop[0] == 0
+
+
+@njit(cache=True)
+def _barrier_chunk(V, conn, nz, gi, gv, factor, t, s, beta, hexes, want_grad, ecell, mcell, okc, gcell, lo, hi):
+    """Cells lo..hi-1 of :func:`barrier_cells` (its scratch arrays allocated once per chunk)."""
+    K = nz.shape[0]
+    n = conn.shape[1]
+    X = np.empty((n, 3))
+    E = np.empty((3, 3))
+    C = np.empty((3, 3))
+    dE = np.empty((3, 3))
+    gl = np.empty((n, 3))
+    XU = np.empty((3, 3, 3))
+    XV = np.empty((3, 3, 3))
+    XW = np.empty((3, 3, 3))
+    GU = np.empty((3, 3, 3))
+    GV = np.empty((3, 3, 3))
+    GW = np.empty((3, 3, 3))
+    eu = np.empty((2, 2, 3))
+    ev = np.empty((2, 2, 3))
+    ew = np.empty((2, 2, 3))
+    b = np.empty(27)
+    db = np.empty(27)
+    for m in range(lo, hi):
+        gl[:] = 0.0
+        for i in range(n):
+            v = conn[m, i]
+            X[i, 0] = V[v, 0]
+            X[i, 1] = V[v, 1]
+            X[i, 2] = V[v, 2]
+        total = 0.0
+        smin = np.inf
+        ok = True
+        prod = 1.0
+        for k in range(K):
+            for d in range(3):
+                a0 = 0.0
+                a1 = 0.0
+                a2 = 0.0
+                for j in range(nz[k, d]):
+                    i = gi[k, d, j]
+                    w = gv[k, d, j]
+                    a0 += X[i, 0] * w
+                    a1 += X[i, 1] * w
+                    a2 += X[i, 2] * w
+                E[0, d] = a0
+                E[1, d] = a1
+                E[2, d] = a2
+            c0 = E[0, 0] * E[0, 0] + E[1, 0] * E[1, 0] + E[2, 0] * E[2, 0]
+            c1 = E[0, 1] * E[0, 1] + E[1, 1] * E[1, 1] + E[2, 1] * E[2, 1]
+            c2 = E[0, 2] * E[0, 2] + E[1, 2] * E[1, 2] + E[2, 2] * E[2, 2]
+            L = np.sqrt(c0) * np.sqrt(c1) * np.sqrt(c2)
+            if not (L > 0.0):
+                ok = False
+                smin = -np.inf
+                break
+            D = _cof(E, C)
+            sj = factor * D / L
+            if sj < smin:
+                smin = sj
+            gap = sj - t
+            if not (gap > 0.0):
+                ok = False
+                break
+            prod *= gap
+            if prod < _SMALL or prod > _BIG:
+                total -= np.log(prod)
+                prod = 1.0
+            if want_grad:
+                w = -1.0 / gap
+                for a in range(3):
+                    dE[a, 0] = w * (factor / L * C[a, 0] - sj * E[a, 0] / c0)
+                    dE[a, 1] = w * (factor / L * C[a, 1] - sj * E[a, 1] / c1)
+                    dE[a, 2] = w * (factor / L * C[a, 2] - sj * E[a, 2] / c2)
+                for d in range(3):
+                    for j in range(nz[k, d]):
+                        i = gi[k, d, j]
+                        wv = gv[k, d, j]
+                        gl[i, 0] += dE[0, d] * wv
+                        gl[i, 1] += dE[1, d] * wv
+                        gl[i, 2] += dE[2, d] * wv
+        if ok:
+            total -= np.log(prod)
+        if ok and hexes:
+            _hex_grid_s(V, conn, m, XU, XV, XW, b, eu, ev, ew)
+            _to_bernstein(b, True)
+            inv3 = 1.0 / (s[m] ** 3)
+            prod = 1.0
+            lsum = 0.0
+            for p in range(27):
+                if not (b[p] > 0.0):
+                    ok = False
+                    break
+                prod *= b[p] * inv3
+                if prod < _SMALL or prod > _BIG:
+                    lsum += np.log(prod)
+                    prod = 1.0
+                db[p] = -beta / b[p]
+            if ok:
+                total -= beta * (lsum + np.log(prod))
+                if want_grad:
+                    _to_bernstein(db, False)
+                    _hex_grid_grad_local(gl, XU, XV, XW, db, GU, GV, GW)
+        ecell[m] = total
+        mcell[m] = smin
+        okc[m] = ok
+        if not ok:
+            return False
+        if want_grad:
+            for i in range(n):
+                for a in range(3):
+                    gcell[m, i, a] = gl[i, a]
+    return True
+
+
+@njit(cache=True)
+def scatter_cells(g, conn, gcell):
+    """g[conn[m, i]] += gcell[m, i] in cell order."""
+    M, n = conn.shape
+    for m in range(M):
+        for i in range(n):
+            v = conn[m, i]
+            for a in range(3):
+                g[v, a] += gcell[m, i, a]

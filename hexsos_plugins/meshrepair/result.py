@@ -1,0 +1,115 @@
+"""What a repair returns, whichever method ran: :class:`RepairResult` and its printed summary.
+
+Imports the certify wing (the certificate's type) only.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..certify import CheckResult
+
+__all__ = ["RepairResult", "readonly"]
+
+
+@dataclass
+class RepairResult:
+    """What :func:`repair` returns.
+
+    Attributes
+    ----------
+    points : (N, 3) float64, the repaired coordinates (a new array; the best mesh seen if not successful)
+    success : bool, every hex proven valid by the final :func:`hexsos_plugins.check` (default settings)
+    check : CheckResult, that final check on the repaired mesh
+    history : list of dict, one per outer iteration (iteration 0 is the input): ``iteration``, ``invalid``
+        (hexes proven invalid), ``undecided``, ``min_det`` (smallest over the mesh), ``sos_steps``,
+        ``projection_steps``, ``moved_vertices``, ``seconds`` (of that iteration)
+    stats : dict, the paper's Table 1 columns and more (see :func:`repair`)
+    displacement : (N, 3) float64, ``points - input points``
+    message : str, why it stopped
+    """
+
+    points: np.ndarray
+    success: bool
+    check: CheckResult
+    history: list
+    stats: dict
+    displacement: np.ndarray
+    message: str
+    extra: dict = field(default_factory=dict)
+
+    def summary(self) -> str:
+        s = self.stats
+        if s.get("method") != "paper":
+            return summary_optimize(self)
+        lines = [
+            "method            paper (Algorithms 1 and 2)",
+            f"hexes             {s['hexes']}",
+            f"invalid before    {s['invalid_before']} (undecided {s['undecided_before']})",
+            f"invalid after     {s['invalid_after']} (undecided {s['undecided_after']})",
+            f"outer iterations  {s['outer_iterations']}",
+            f"SOS steps         {s['sos_steps']} (kernel evaluations per hex; SDP solves {s['sdp_solves']})",
+            f"(R) steps         {s['projection_steps']}",
+            f"displacement      max {s['max_displacement']:.6g}, mean {s['mean_displacement']:.6g} over "
+            f"{s['moved_vertices']} moved vertices"
+            + (f", {s['pinned_vertices']} pinned" if s["pinned_vertices"] else ""),
+        ]
+        if "min_sj_after" in s:
+            lines.append(sj_line(s))
+        lines += [
+            f"monotone invalid  {s['monotone_invalid']}",
+            f"time              {s['seconds']:.3f} s",
+            f"result            {'certified: every hex proven valid' if self.success else 'NOT all hexes proven valid'}",
+            f"                  {self.message}",
+        ]
+        return "\n".join(lines)
+
+    def __repr__(self) -> str:
+        s = self.stats
+        return (f"RepairResult(success={self.success}, hexes={s['hexes']}, invalid_before={s['invalid_before']}, "
+                f"invalid_after={s['invalid_after']}, outer_iterations={s['outer_iterations']})")
+
+
+
+
+def sj_line(s):
+    return (f"scaled Jacobian   min {s['min_sj_before']:.4f} -> {s['min_sj_after']:.4f}, 1st percentile "
+            f"{s['p1_sj_before']:.4f} -> {s['p1_sj_after']:.4f}, mean {s['mean_sj_before']:.4f} -> "
+            f"{s['mean_sj_after']:.4f}")
+
+
+def summary_optimize(res):
+    s = res.stats
+    other = ""
+    if s.get("other_cells"):
+        other = (f"other cells       {s['other_cells']} ({', '.join(f'{k} {v}' for k, v in s['other_cell_types'].items())}):"
+                 f" invalid {s['other_cells_invalid_before']} -> {s['other_cells_invalid_after']} "
+                 f"({s['other_cells_check']})")
+    st = s.get("stage_seconds", {})
+    lines = [
+        f"method            {s['method']} (untangle, raise the min scaled Jacobian, certify); boundary {s['boundary']}",
+        f"hexes             {s['hexes']}",
+        f"invalid before    {s['invalid_before']} (undecided {s['undecided_before']})",
+        f"invalid after     {s['invalid_after']} (undecided {s['undecided_after']})",
+    ] + ([other] if other else []) + [
+        f"min det J         {s['min_det_before']:.6g} -> {s['min_det_after']:.6g} (exact, the kernel's)",
+        sj_line(s),
+        f"displacement      max {s['max_displacement']:.6g}, mean {s['mean_displacement']:.6g} over "
+        f"{s['moved_vertices']} moved vertices" + (f", {s['pinned_vertices']} pinned" if s["pinned_vertices"] else ""),
+        f"stages            untangle {st.get('untangle', 0):.2f} s ({s['untangle_iterations']} iterations), quality "
+        f"{st.get('quality', 0):.2f} s ({s['quality_rounds']} rounds), certify {st.get('certify', 0):.2f} s"
+        + (f", fallback (paper) {st['fallback']:.2f} s" if "fallback" in st else ""),
+        f"time              {s['seconds']:.3f} s",
+        f"result            {'certified: every cell proven valid' if res.success else 'NOT every cell proven valid'}",
+        f"                  {res.message}",
+    ]
+    return "\n".join(lines)
+
+
+def readonly(a):
+    """A read-only view of an array (what a repair's callback is handed)."""
+    v = a.view()
+    v.flags.writeable = False
+    return v
