@@ -31,9 +31,12 @@ __all__ = ["exact_coefficients", "decide", "round_down", "round_nearest"]
 
 def exact_coefficients(X, name: str) -> list:
     """det J's Bernstein coefficients (pyramids: the measure's) of one cell X (n, 3), exactly, as Fractions,
-    in the order of :func:`hexsos_plugins.cells.jacobian.space`."""
+    in the order of :func:`hexsos_plugins.cells.jacobian.space`. X: floats, or rows of Fractions (taken as they are)."""
     F = formulation(name)
-    Xf = [[Fraction(float(v)) for v in row] for row in np.asarray(X, dtype=np.float64)]
+    if isinstance(X, list) and X and isinstance(X[0][0], Fraction):
+        Xf = [list(row) for row in X]
+    else:
+        Xf = [[Fraction(float(v)) for v in row] for row in np.asarray(X, dtype=np.float64)]
     C = F["C"]
     P = [[sum((c * Xf[i][a] for i, c in enumerate(row) if c), Fraction(0)) for a in range(3)] for row in C]
     cols = [[[w * (P[b][a] - P[i][a]) for a in range(3)] for i, b, w in entries] for _, entries in F["columns"]]
