@@ -207,3 +207,34 @@ def test_gmsh_meshes(gmsh_mesh, field):
     name, conn = next((n, np.asarray(c)) for n, c, s in _blocks(cells) if s <= w["cell"] < s + len(c))
     row = conn[w["cell"] - _offset(cells, name)][None]
     assert kernel.det_at(P + w["t"] * D, row, name, w["point"])[0] <= 0
+
+
+def test_cli_step(tmp_path, capsys):
+    """``hexsos step``: the one-line summary, the JSON's safe_step and witness, the exit codes, bad array names."""
+    import json
+
+    from hexsos_plugins.cli import main
+    from hexsos_plugins.examples import structured_grid
+
+    P, H = structured_grid(3)
+    D = np.zeros_like(P)
+    centre = int(np.argmin(np.linalg.norm(P - P.mean(axis=0), axis=1)))
+    far = int(np.argmax(P @ np.ones(3)))
+    D[centre] = [0.5, 0.5, 0.5]  # an interior node pushed through its neighbours
+    m = hs.Mesh.from_arrays(P, H)
+    path = str(tmp_path / "g.vtu")
+    hs.write(m.to_meshio(point_data={"u": D, "v": np.zeros_like(P)}), path)
+    assert main(["step", path, "--displacement", "u", "--json", "-o", str(tmp_path / "o.vtu")]) == 1
+    d = json.loads(capsys.readouterr().out)
+    expect = safe_step(P, H, D)
+    assert d["safe_step"] == expect.t and 0 < d["safe_step"] < 1
+    assert d["witness"]["cell"] == expect.witness["cell"] and d["witness"]["t"] > d["safe_step"]
+    assert len(d["witness"]["point"]) == 3
+    out = hs.read(str(tmp_path / "o.vtu"))
+    arr = np.concatenate(out.source.cell_data["hexsos_safe_step"])
+    assert arr.min() == d["safe_step"] and arr.max() == 1.0
+    assert main(["step", path, "--displacement", "v"]) == 0
+    assert "whole step is proven safe" in capsys.readouterr().out
+    assert main(["step", path, "--displacement", "w"]) == 2
+    assert "'w'" in capsys.readouterr().err
+    assert far >= 0

@@ -1,4 +1,4 @@
-"""The command line: ``hexsos check | repair | convert | demo | paraview | gmsh``.
+"""The command line: ``hexsos check | repair | step | convert | demo | paraview | gmsh``.
 
 Exit codes: 0 success (for ``check``: every cell proven valid), 1 the command ran but the mesh is not
 (proven) valid or a repair did not succeed, 2 bad input or another error (one line on stderr, no
@@ -16,6 +16,7 @@ import sys
 from . import check as cli_check
 from . import doors as cli_doors
 from . import repair as cli_repair
+from . import step as cli_step
 from .._version import __version__
 from .common import announce_compilation, fail, resolve_run_options
 from ..errors import HexsosError
@@ -31,6 +32,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     cli_check.add_parsers(sub)
     cli_repair.add_parser(sub)
+    cli_step.add_parser(sub)
     cli_doors.add_parsers(sub)
     return parser
 
