@@ -243,3 +243,49 @@ def test_missing_dependencies_are_a_vtk_error_that_says_what_to_set(tmp_path, mi
         pytest.skip("ParaView's Python finds clarabel on its own here")
     assert res["cells"] == 0
     assert "cannot import the hexsos kernel" in proc.stderr and "HEXSOS_PYTHONPATH" in proc.stderr
+
+
+def test_safe_step_filter_in_pvpython(tmp_path):
+    """"HexSOS Safe Step" in ParaView's own Python: the per-cell safe fractions and the witness are what this
+    process computes; the witness lies in the moved mesh; a missing array is an error, not a crash."""
+    from hexsos_plugins.elements import world_points
+    from hexsos_plugins.safe_step import safe_step
+
+    P, H = structured_grid(3)
+    D = np.zeros_like(P)
+    D[int(np.argmin(np.linalg.norm(P - P.mean(axis=0), axis=1)))] = [0.5, 0.5, 0.5]
+    grid = make_grid(P, [(HEX, h) for h in H])
+    arr = vtk_filter.hexsos_paraview_plugin._vtk_array("disp", D)
+    grid.GetPointData().AddArray(arr)
+    path = write_vtu(grid, tmp_path / "moving.vtu")
+    expected = safe_step(P, H, D)
+    assert 0 < expected.t < 1
+    res, _ = run_pvpython(tmp_path, f"""
+        import json
+        from paraview.simple import *
+        from paraview import servermanager
+        LoadPlugin({PLUGIN!r}, ns=globals())
+        reader = XMLUnstructuredGridReader(FileName=[{path!r}])
+        step = HexSOSSafeStep(Input=reader)
+        step.Displacement = "disp"
+        step.UpdatePipeline()
+        out = {{"mesh": report(step, 0), "witness": report(step, 1),
+               "t": servermanager.Fetch(step).GetFieldData().GetArray("hexsos_safe_step").GetValue(0),
+               "label": step.SMProxy.GetXMLLabel()}}
+        pts = servermanager.Fetch(step, idx=1).GetPoints()
+        out["witness_xyz"] = [list(pts.GetPoint(i)) for i in range(pts.GetNumberOfPoints())]
+        bad = HexSOSSafeStep(Input=reader)
+        bad.Displacement = "nope"
+        bad.UpdatePipeline()
+        out["bad"] = report(bad, 0)
+        json.dump(out, open(OUT, "w"))
+    """)
+    assert res["label"] == "HexSOS Safe Step"
+    assert res["t"] == expected.t
+    assert res["mesh"]["cell:hexsos_safe_step"] == expected.cell_t.tolist()
+    w = expected.witness
+    assert res["witness"]["point:hexsos_cell_id"] == [w["cell"]]
+    assert res["witness"]["point:hexsos_witness_t"] == [w["t"]]
+    xyz = world_points(P + w["t"] * D, [("hexahedron", H[w["cell"]][None])], np.asarray(w["point"])[None])
+    assert np.allclose(res["witness_xyz"], xyz)
+    assert res["bad"]["cells"] == 0

@@ -6,7 +6,7 @@ loads *every* ``.py`` file of a ``PV_PLUGIN_PATH`` directory as a plugin, this o
 named ``__init__``), so this file must run nothing and register nothing.
 """
 
-__all__ = ["HexSOSCheckFilter", "HexSOSRepairFilter", "STATUS_NOT_A_HEX", "dependency_paths"]
+__all__ = ["HexSOSCheckFilter", "HexSOSRepairFilter", "HexSOSSafeStepFilter", "STATUS_NOT_A_HEX", "dependency_paths"]
 
 
 def __getattr__(name):

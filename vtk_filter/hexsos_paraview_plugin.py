@@ -1032,5 +1032,112 @@ def main(argv=None) -> int:
     return 0
 
 
+# ----------------------------------------------------------------------------------------------------
+# The certified largest safe step of a displacement field
+# ----------------------------------------------------------------------------------------------------
+
+
+class HexSOSSafeStepFilter(_HexSOSBase):
+    """The certified largest fraction of a displacement that keeps every cell valid (``hexsos_plugins.safe_step``).
+
+    Input: a vtkUnstructuredGrid with a point-data vector array (``SetDisplacement(name)``, default
+    ``"displacement"``; 2 components are taken with z = 0). The step moves the points to ``x + t * d``.
+
+    Output port 0: the input grid (structure shallow-copied, arrays kept) with the cell array
+    ``hexsos_safe_step``: each checked cell's proven safe fraction (1 where the whole step is safe; NaN on
+    cells hexsos does not check), and field data ``hexsos_safe_step`` (the mesh's t*) and ``hexsos_summary``.
+
+    Output port 1: a vtkPolyData with the witness: one vertex where validity is proven lost just past t*, at its
+    position in the moved mesh ``x + t_w d``, with point data ``hexsos_cell_id`` (cell index in the input grid),
+    ``hexsos_witness_t`` (t_w), ``hexsos_witness_pcoords`` (reference coordinates) and ``hexsos_witness_det``
+    (det J there, <= 0 by rational arithmetic); empty when the whole step is safe.
+
+    Errors (no such array, a grid without checkable cells, ...) are reported as :class:`HexSOSCheckFilter`'s.
+    """
+
+    def __init__(self):
+        _HexSOSBase.__init__(self, 2)
+        self._displacement = "displacement"
+
+    def FillOutputPortInformation(self, port, info):
+        info.Set(vtkDataObject.DATA_TYPE_NAME(), "vtkUnstructuredGrid" if port == 0 else "vtkPolyData")
+        return 1
+
+    @smproperty.stringvector(name="Displacement", default_values="displacement", number_of_elements=1)
+    @_doc("The point-data vector array to step along (e.g. a solver's displacement): points move to x + t d.")
+    def SetDisplacement(self, value):
+        self._set("_displacement", value.decode() if isinstance(value, bytes) else str(value))
+
+    def GetDisplacement(self) -> str:
+        return self._displacement
+
+    def _execute(self, inp, outputs):
+        out, poly_out = outputs
+        kernel, elements, blocks, _ = self._prepare(inp, "safe_step")
+        arr = inp.GetPointData().GetArray(self._displacement)
+        if arr is None:
+            pd = inp.GetPointData()
+            have = [pd.GetArrayName(i) for i in range(pd.GetNumberOfArrays())]
+            raise ValueError(f"expected a point-data array named {self._displacement!r} (the displacement), "
+                             f"found: {', '.join(map(str, have)) or 'none'}")
+        D = np.asarray(_to_numpy(arr), dtype=np.float64)
+        if D.ndim != 2 or D.shape[1] not in (2, 3):
+            raise ValueError(f"{self._displacement}: expected a vector array (2 or 3 components), found shape "
+                             f"{D.shape}")
+        if D.shape[1] == 2:
+            D = np.column_stack([D, np.zeros(len(D))])
+        P = _points(inp)
+        cells = [(t, c) for t, c, _ in blocks]
+        cell_ids = np.concatenate([ids for _, _, ids in blocks])
+        self.UpdateProgress(0.0)
+        step = sys.modules["hexsos_plugins.safe_step"]
+        result = step.safe_step(P, cells, D, jobs=0)
+        out.ShallowCopy(inp)
+        out.GetCellData().AddArray(_vtk_array("hexsos_safe_step", _spread(result.cell_t, cell_ids,
+                                                                           out.GetNumberOfCells(), np.nan)))
+        t_arr = _vtk_array("hexsos_safe_step", np.array([result.t]))
+        out.GetFieldData().AddArray(t_arr)
+        w = result.witness
+        text = (f"safe step t* = {result.t:.9g}" if result.t < 1 else "the whole step is proven safe (t* = 1)")
+        if w is not None:
+            text += f"; cell {int(cell_ids[w['cell']])} proven invalid at t = {w['t']:.9g}"
+        _add_summary(out, "hexsos_summary", text)
+        poly = vtkPolyData()
+        pts = vtkPoints()
+        pts.SetDataTypeToDouble()
+        verts = vtkCellArray()
+        if w is not None:
+            s = 0
+            for name, conn, _ in blocks:
+                if s <= w["cell"] < s + len(conn):
+                    row = conn[w["cell"] - s][None]
+                    X = elements.world_points(P + w["t"] * D, [(name, row)], np.asarray(w["point"])[None])
+                    break
+                s += len(conn)
+            pts.SetData(_vtk_array("Points", X.reshape(-1, 3)))
+            verts.InsertNextCell(1)
+            verts.InsertCellPoint(0)
+        else:
+            pts.SetData(_vtk_array("Points", np.zeros((0, 3))))
+        poly.SetPoints(pts)
+        poly.SetVerts(verts)
+        pd = poly.GetPointData()
+        n = 1 if w is not None else 0
+        pd.AddArray(_vtk_array("hexsos_cell_id", np.array([int(cell_ids[w["cell"]])] if n else [], dtype=np.int64)))
+        pd.AddArray(_vtk_array("hexsos_witness_t", np.array([w["t"]] if n else [], dtype=np.float64)))
+        pd.AddArray(_vtk_array("hexsos_witness_pcoords", np.asarray([w["point"]] if n else np.zeros((0, 3)),
+                                                                    dtype=np.float64).reshape(-1, 3)))
+        pd.AddArray(_vtk_array("hexsos_witness_det", np.array([w["det"]] if n else [], dtype=np.float64)))
+        poly_out.ShallowCopy(poly)
+        self._result = result
+        self.UpdateProgress(1.0)
+
+
+_register(HexSOSSafeStepFilter, "HexSOSSafeStep", "HexSOS Safe Step",
+          "The certified largest fraction of a displacement that keeps every cell valid, and where it is lost.",
+          ["Mesh", "Witness"])
+
+
+
 if __name__ == "__main__":
     sys.exit(main())

@@ -360,7 +360,9 @@ class SafeStepResult:
     ``t``: the mesh's t* (1.0 when the whole step is proven safe): det J > 0 is proven on every cell for every
     t in [0, t]. ``cell_t`` (M,): per cell, a proven safe fraction (1.0, or within ``rtol_cells`` relative of the
     cell's true one; the cells that set the mesh's t*, within ``rtol``). ``cell_hi`` (M,): per cell, a t where its
-    det J <= 0 was proven (inf where none was sought or found). ``witness``: ``{"cell", "point", "t", "det"}`` with
+    det J <= 0 was proven (inf where none was sought or found). ``witness``: ``{"cell", "cell_type", "point",
+    "t", "det", "exact_det"}`` (cell: its index in the blocks' order; point: reference coordinates, as
+    :attr:`hexsos_plugins.CheckResult.argmin`) with
     det J of the exact ``x + t d`` at the reference point, <= 0 by rational arithmetic (det: that value rounded
     to a float, world units), or None (the whole step is safe, or no loss was proven). ``check_valid``: whether
     :func:`hexsos_plugins.check` proves every cell of fl(x + t d) valid (True unless t = 0)."""
@@ -530,6 +532,6 @@ def _find_witness(P, D, sweeps, cell_t, T):
         for t, x in candidates:
             val = exact_det_at(_exact_cell(P, D, row, t), name, x)
             if val <= 0:
-                return {"cell": int(g), "point": np.asarray(x, dtype=np.float64), "t": float(t), "det": float(val),
-                        "exact_det": val}
+                return {"cell": int(g), "cell_type": name, "point": np.asarray(x, dtype=np.float64), "t": float(t),
+                        "det": float(val), "exact_det": val}
     return None
