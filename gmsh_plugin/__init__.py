@@ -1,6 +1,6 @@
 """The Gmsh door of hexsos: check every 3-D element of a Gmsh model and repair it, in scripts or in the Gmsh GUI.
 
-* Scripts: :func:`check_model`, :func:`repair_model`, :func:`post_views` work on the current Gmsh model
+* Scripts: :func:`check_model`, :func:`repair_model`, :func:`safe_step_model`, :func:`post_views` work on the current Gmsh model
   (``gmsh.initialize()`` first); see :mod:`gmsh_plugin.model`.
 * GUI: ``hexsos-gmsh MESH`` (or ``python -m gmsh_plugin MESH``) opens Gmsh with the ONELAB panel "hexsos";
   see :mod:`gmsh_plugin.panel` and :mod:`gmsh_plugin.__main__`.
@@ -14,6 +14,7 @@ from gmsh_plugin.model import (
     VIEW_DISPLACEMENT,
     VIEW_MIN_DET,
     VIEW_NAMES,
+    VIEW_SAFE_STEP,
     VIEW_STATUS,
     GmshCells,
     GmshHexes,
@@ -27,6 +28,7 @@ from gmsh_plugin.model import (
     post_views,
     remove_views,
     repair_model,
+    safe_step_model,
     world_points,
     write_views,
 )
@@ -35,6 +37,8 @@ from gmsh_plugin.panel import ACTION_CHECK, ACTION_REPAIR, define_parameters, ev
 __all__ = [
     "check_model",
     "repair_model",
+    "safe_step_model",
+    "VIEW_SAFE_STEP",
     "post_views",
     "post_displacement",
     "model_cells",

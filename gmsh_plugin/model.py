@@ -48,6 +48,8 @@ __all__ = [
     "VIEW_ARGMIN",
     "VIEW_DISPLACEMENT",
     "VIEW_NAMES",
+    "VIEW_SAFE_STEP",
+    "safe_step_model",
     "HEX8",
     "model_cells",
     "model_hexes",
@@ -553,3 +555,84 @@ def repair_model(*, repair_method: str = "optimize", boundary: str | None = None
     res.extra["gmsh"] = hx
     res.extra["moved_node_tags"] = tags[moved]
     return res
+
+
+#: The name of the view :func:`safe_step_model` posts (each element's proven safe fraction).
+VIEW_SAFE_STEP = "hexsos: safe step"
+
+
+def _node_displacement(hx, displacement, view, step):
+    """(N, 3) displacement in the order of ``hx.node_tags``, from an array, a {node tag: vector} dict, or a
+    NodeData vector view."""
+    n = hx.node_tags.size
+    if view is not None:
+        gmsh = _gmsh()
+        kind, tags, data, _, ncomp = gmsh.view.getModelData(int(view), int(step))
+        if kind != "NodeData" or ncomp not in (2, 3):
+            raise GmshModelError(f"safe_step_model: expected view {view} to hold NodeData vectors, found {kind} "
+                                 f"with {ncomp} components")
+        displacement = {int(t): list(v) + [0.0] * (3 - ncomp) for t, v in zip(tags, data)}
+    if isinstance(displacement, dict):
+        D = np.zeros((n, 3))
+        seen = np.zeros(n, dtype=bool)
+        for t, v in displacement.items():
+            i = int(np.searchsorted(hx.node_tags, np.uint64(t)))
+            if i < n and int(hx.node_tags[i]) == int(t):
+                D[i] = v
+                seen[i] = True
+        if not seen.all():
+            missing = hx.node_tags[~seen][:5].tolist()
+            raise GmshModelError(f"safe_step_model: expected a displacement for every node of the 3-D elements, "
+                                 f"found none for {int((~seen).sum())} (tags {missing}...)")
+        return D
+    D = np.asarray(displacement, dtype=np.float64)
+    if D.shape != (n, 3):
+        raise GmshModelError(f"safe_step_model: expected a displacement array of shape ({n}, 3) in the order of "
+                             f"the node tags of model_cells(), found shape {D.shape}")
+    return D
+
+
+def safe_step_model(displacement=None, *, view=None, step: int = 0, post_views: bool = True, rtol=None):
+    """The certified largest fraction t* of a displacement of the current Gmsh model that keeps every 3-D element
+    valid (:func:`hexsos_plugins.safe_step.safe_step`).
+
+    Parameters
+    ----------
+    displacement : (N, 3) array in the order of ``model_cells().node_tags``, or a dict {node tag: vector}
+    view : int, optional, keyword-only
+        Instead: the tag of a NodeData vector view (a solver's displacement), at time step ``step``.
+    post_views : bool, keyword-only
+        Post the ElementData view ``"hexsos: safe step"`` (each element's proven safe fraction).
+    rtol : float, optional, keyword-only
+        Passed to safe_step.
+
+    Returns
+    -------
+    hexsos_plugins.safe_step.SafeStepResult
+        ``t`` the model's t*; ``extra["gmsh"]`` the :class:`GmshCells`, ``extra["witness_element_tag"]`` the Gmsh
+        tag of the witness element (None without witness), ``extra["gmsh_view"]`` the posted view's tag.
+    """
+    from hexsos_plugins.safe_step import safe_step
+
+    if (displacement is None) == (view is None):
+        raise GmshModelError("safe_step_model: pass either a displacement or view=TAG")
+    hx = model_cells()
+    D = _node_displacement(hx, displacement, view, step)
+    kw = {} if rtol is None else {"rtol": rtol}
+    result = safe_step(hx.points, hx.cells, D, jobs=0, **kw)
+    result.extra["gmsh"] = hx
+    w = result.witness
+    result.extra["witness_element_tag"] = int(hx.element_tags[w["cell"]]) if w is not None else None
+    result.extra["gmsh_view"] = None
+    if post_views:
+        gmsh = _gmsh()
+        old = None
+        for tag in gmsh.view.getTags():
+            if gmsh.option.getString(f"View[{gmsh.view.getIndex(tag)}].Name") == VIEW_SAFE_STEP:
+                old = int(tag)
+                gmsh.view.remove(old)
+        tag = int(gmsh.view.add(VIEW_SAFE_STEP, old) if old is not None else gmsh.view.add(VIEW_SAFE_STEP))
+        gmsh.view.addHomogeneousModelData(tag, 0, hx.model, "ElementData", hx.element_tags,
+                                          np.ascontiguousarray(result.cell_t, dtype=np.float64), numComponents=1)
+        result.extra["gmsh_view"] = tag
+    return result

@@ -772,3 +772,42 @@ def test_public_names_resolve():
     for mod in (gm, panel):
         for name in mod.__all__:
             assert hasattr(mod, name), (mod.__name__, name)
+
+
+# --- the safe step ----------------------------------------------------------------------------------------
+
+def test_safe_step_model_from_a_view_and_from_arrays(session):
+    """safe_step_model on a Gmsh model whose nodes are scrambled: a NodeData view (a solver's output) and an
+    array give the kernel's answer on the same arrays; the witness maps to its Gmsh element; the view holds
+    each element's safe fraction by tag."""
+    from hexsos_plugins.examples import gmsh_mesh as ring
+    from hexsos_plugins.safe_step import safe_step
+
+    P, H = ring("box", 3)
+    D = np.zeros_like(P)
+    centre = int(np.argmin(np.linalg.norm(P - P.mean(axis=0), axis=1)))
+    D[centre] = [0.4, 0.3, 0.5]
+    node_tags, elem_tags = _load_scrambled(P, H)
+    hx = gm.model_cells()
+    rows = np.searchsorted(node_tags[np.argsort(node_tags)], hx.node_tags)
+    orig = np.argsort(node_tags)[rows]  # original point of each model row
+    Dm = D[orig]
+    view = gmsh.view.add("solver displacement")
+    gmsh.view.addHomogeneousModelData(view, 0, gmsh.model.getCurrent(), "NodeData", hx.node_tags, Dm.ravel(),
+                                      numComponents=3)
+    r = gmsh_plugin.safe_step_model(view=view)
+    expect = safe_step(P, H, D)
+    assert 0 < r.t < 1 and r.t == expect.t
+    a = gmsh_plugin.safe_step_model(Dm, post_views=False)
+    assert a.t == r.t and a.extra["gmsh_view"] is None
+    # the witness element is the one the kernel names, through the tags
+    wtag = r.extra["witness_element_tag"]
+    expected_tag = elem_tags[expect.witness["cell"]]
+    assert wtag == expected_tag
+    # the posted view holds each element's fraction by element tag
+    kind, tags, data, _, _ = gmsh.view.getModelData(r.extra["gmsh_view"], 0)
+    got = dict(zip(np.asarray(tags).tolist(), np.asarray(data).ravel().tolist()))
+    assert got[int(expected_tag)] == r.t
+    assert min(got.values()) == r.t and max(got.values()) == 1.0
+    with pytest.raises(gm.GmshModelError, match="shape"):
+        gmsh_plugin.safe_step_model(np.zeros((3, 3)))

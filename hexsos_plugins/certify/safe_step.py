@@ -374,6 +374,7 @@ class SafeStepResult:
     check_valid: bool
     seconds: float = 0.0
     stats: dict = field(default_factory=dict)
+    extra: dict = field(default_factory=dict)  # what a door adds (e.g. the Gmsh element tags)
 
     @property
     def safe(self) -> bool:
