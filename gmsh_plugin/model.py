@@ -602,7 +602,8 @@ def safe_step_model(displacement=None, *, view=None, step: int = 0, post_views: 
     view : int, optional, keyword-only
         Instead: the tag of a NodeData vector view (a solver's displacement), at time step ``step``.
     post_views : bool, keyword-only
-        Post the ElementData view ``"hexsos: safe step"`` (each element's proven safe fraction).
+        Post the ElementData view ``"hexsos: safe step"`` (each element's proven safe fraction). False: the
+        model's t* alone (``per_cell=False``: faster; ``cell_t`` then holds lower bounds only).
     rtol : float, optional, keyword-only
         Passed to safe_step.
 
@@ -619,7 +620,7 @@ def safe_step_model(displacement=None, *, view=None, step: int = 0, post_views: 
     hx = model_cells()
     D = _node_displacement(hx, displacement, view, step)
     kw = {} if rtol is None else {"rtol": rtol}
-    result = safe_step(hx.points, hx.cells, D, jobs=0, **kw)
+    result = safe_step(hx.points, hx.cells, D, jobs=0, per_cell=post_views, **kw)
     result.extra["gmsh"] = hx
     w = result.witness
     result.extra["witness_element_tag"] = int(hx.element_tags[w["cell"]]) if w is not None else None

@@ -185,6 +185,9 @@ def test_gmsh_meshes(gmsh_mesh, field):
     r = safe_step(P, cells, D)
     assert 0 < r.t < 1 and r.check_valid
     assert np.all(hs.check(P + r.t * D, cells).status == 1)
+    fast = safe_step(P, cells, D, per_cell=False)  # the mesh's t* alone: the same t* and witness
+    assert fast.t == r.t and fast.witness["cell"] == r.witness["cell"] and fast.witness["t"] == r.witness["t"]
+    assert np.all(fast.cell_t >= r.t)
     w = r.witness
     assert w is not None and r.t < w["t"] <= r.t * (1 + 1e-6)
     after = hs.check(P + w["t"] * D, cells)

@@ -125,9 +125,9 @@ class _Space:
         self.children = []
         for f, n in enumerate(self.sizes):
             nc = int(sp.nchildren[f])
-            mats = [np.ascontiguousarray(sp.S[f, c, :n, :n]) for c in range(nc)]
-            nnz = max(int(np.count_nonzero(M, axis=1).max()) for M in mats)
-            self.children.append((mats, [np.asarray(sp.child_maps[f, c]) for c in range(nc)], nnz))
+            mats = np.ascontiguousarray(sp.S[f, :nc, :n, :n])
+            nnz = int(np.count_nonzero(mats, axis=2).max())
+            self.children.append((mats, np.ascontiguousarray(sp.child_maps[f, :nc]), nnz))
 
 
 @lru_cache(maxsize=None)
@@ -209,24 +209,27 @@ def _subdivide(c, e, A, o, sp):
     """Every box (B, nb, 4) split along every factor by the child matrices; the boxes' affine maps follow."""
     B = c.shape[0]
     shape = [B] + sp.sizes + [4]
-    cs, es, As, os_ = [c.reshape(shape)], [e.reshape(shape)], [A], [o]
-    for f, (mats, maps, nnz) in enumerate(sp.children):
-        if len(mats) == 1:
+    c, e, ca = c.reshape(shape), e.reshape(shape), np.abs(c).reshape(shape)
+    for f, (Ms, maps, nnz) in enumerate(sp.children):
+        nc = Ms.shape[0]
+        if nc == 1:
             continue
         axis = 1 + f
-        nc, ne, nA, no = [], [], [], []
-        for M, Mk in zip(mats, maps):
-            for cc, ee, AA, oo in zip(cs, es, As, os_):
-                ch = np.moveaxis(np.tensordot(M, cc, axes=([1], [axis])), 0, axis)
-                cabs = np.moveaxis(np.tensordot(M, np.abs(cc), axes=([1], [axis])), 0, axis)
-                ce = np.moveaxis(np.tensordot(M, ee, axes=([1], [axis])), 0, axis)
-                nc.append(ch)
-                ne.append(_up(ce + (nnz + 2) * U * cabs))
-                nA.append(AA @ Mk[:, :3])
-                no.append(oo + AA @ Mk[:, 3])
-        cs, es, As, os_ = nc, ne, nA, no
-    flat = lambda xs: np.concatenate([x.reshape(x.shape[0], -1, 4) for x in xs])
-    return flat(cs), flat(es), np.concatenate(As), np.concatenate(os_)
+
+        def apply(x):
+            x = np.moveaxis(x, axis, 1)
+            sh = x.shape
+            y = np.matmul(Ms[:, None], x.reshape(sh[0], sh[1], -1)[None])  # (nc, B, n, rest)
+            y = y.reshape((nc * sh[0],) + sh[1:])
+            return np.moveaxis(y, 1, axis)
+
+        c, ce, cabs = apply(c), apply(e), apply(ca)
+        e = _up(ce + (nnz + 2) * U * cabs)
+        ca = np.abs(c)
+        o = (o[None] + np.einsum("bij,cj->cbi", A, maps[:, :, 3])).reshape(-1, 3)
+        A = np.einsum("bij,cjk->cbik", A, maps[:, :, :3]).reshape(-1, 3, 3)
+    n = c.shape[0]
+    return c.reshape(n, -1, 4), e.reshape(n, -1, 4), A, o
 
 
 _PROVEN, _NEG, _UNKNOWN = 1, 0, -1
@@ -256,7 +259,7 @@ def _prove(c, e, sp, max_boxes, max_levels=24):
 
 
 def _children_count(sp):
-    return prod(len(m) for m, _, _ in sp.children)
+    return prod(m.shape[0] for m, _, _ in sp.children)
 
 
 @dataclass
@@ -278,13 +281,15 @@ def _start(c, e):
     return _Sweep(stack=[(0, 0, c, e)])
 
 
-def _run(sw, sp, rtol, max_boxes):
+def _run(sw, sp, rtol, max_boxes, stop_at=math.inf):
     """Continue the sweep until the interval to examine is narrower than rtol times its left end (or the stack
-    is empty: lo = 1)."""
+    is empty: lo = 1), or the proven prefix reaches ``stop_at``."""
     if sw.stuck is not None:
         sw.stack.append(sw.stuck_item)
         sw.stuck = None
     while sw.stack:
+        if sw.lo >= stop_at:
+            return sw
         m, k, c, e = sw.stack.pop()
         a = k * 2.0**-m
         r, x = _prove(c, e, sp, max_boxes)
@@ -388,7 +393,8 @@ class SafeStepResult:
                  "t": float(self.witness["t"]), "det": float(self.witness["det"])}
         return {"safe_step": float(self.t), "witness": w, "whole_step_safe": self.safe,
                 "check_valid_at_safe_step": bool(self.check_valid), "cells": int(self.cell_t.size),
-                "cells_limited": int(np.count_nonzero(self.cell_t < 1.0)), "seconds": float(self.seconds)}
+                "cells_limited": int(np.count_nonzero(self.cell_t < 1.0)) if self.stats.get("per_cell", True) else None,
+                "seconds": float(self.seconds)}
 
 
 def _as_displacement(displacement, n_points):
@@ -402,7 +408,7 @@ def _as_displacement(displacement, n_points):
 
 
 def safe_step(points, cells, displacement, *, rtol: float = 2.0**-24, rtol_cells: float = 2.0**-10,
-              max_boxes: int = 4096, jobs: int = 1, verify: bool = True) -> SafeStepResult:
+              max_boxes: int = 4096, jobs: int = 1, verify: bool = True, per_cell: bool = True) -> SafeStepResult:
     """The certified largest fraction t* in [0, 1] of the displacement that keeps every cell valid.
 
     Parameters
@@ -421,6 +427,10 @@ def safe_step(points, cells, displacement, *, rtol: float = 2.0**-24, rtol_cells
         Threads of the compiled kernel (0: one per core).
     verify : bool, keyword-only
         Check fl(x + t* d) with :func:`hexsos_plugins.check` (and step back until it proves every cell valid).
+    per_cell : bool, keyword-only
+        Resolve every cell's own safe fraction (default). False: only the mesh's t* and its witness; each cell
+        is then swept no further than needed to show it is not the minimum (``cell_t`` holds proven lower
+        bounds, not resolved ones): much faster when many cells limit the step.
 
     Returns
     -------
@@ -448,16 +458,27 @@ def safe_step(points, cells, displacement, *, rtol: float = 2.0**-24, rtol_cells
     D = _as_displacement(displacement, P.shape[0])
     old = set_threads(cores() if jobs == 0 else jobs)
     try:
-        return _safe_step(P, D, blocks, rtol, rtol_cells, max_boxes, verify, t0)
+        return _safe_step(P, D, blocks, rtol, rtol_cells, max_boxes, verify, t0, per_cell)
     finally:
         set_threads(old)
 
 
-def _safe_step(P, D, blocks, rtol, rtol_cells, max_boxes, verify, t0):
+def _estimate(c, vidx, n=65):
+    """A first guess (no proof) of where each cell loses validity: the first of n values of t where det J at a
+    vertex of the element (its vertex coefficients' cubic in t) is negative; 1 where none is."""
+    ts = np.linspace(0.0, 1.0, n)
+    B = np.stack([(1 - ts) ** 3, 3 * ts * (1 - ts) ** 2, 3 * ts ** 2 * (1 - ts), ts ** 3], axis=1)  # (n, 4)
+    vals = (c[:, vidx, :] @ B.T).min(axis=1)  # (m, n)
+    neg = vals < 0
+    return np.where(neg.any(axis=1), ts[np.argmax(neg, axis=1)], 1.0)
+
+
+def _safe_step(P, D, blocks, rtol, rtol_cells, max_boxes, verify, t0, per_cell=True):
     total = sum(b.shape[0] for _, b in blocks)
     cell_t = np.ones(total)
     cell_hi = np.full(total, np.inf)
     sweeps = {}  # global cell index -> (sweep, space, block conn row, type)
+    pending = []  # (first guess, global index, coefficients, bounds, space, conn row, type)
     start = 0
     root_proven = 0
     for name, conn in blocks:
@@ -469,23 +490,38 @@ def _safe_step(P, D, blocks, rtol, rtol_cells, max_boxes, verify, t0):
         ok = low > 0.0
         root_proven += int(ok.sum())
         sp = _space(name)
-        for i in np.flatnonzero(~ok):
-            sw = _run(_start(c[i], e[i]), sp, rtol_cells, max_boxes)
-            sweeps[start + int(i)] = (sw, sp, conn[i], name)
-            cell_t[start + i] = sw.lo
-            cell_hi[start + i] = sw.hi
+        bad = np.flatnonzero(~ok)
+        est = _estimate(c[bad], sp.vidx) if bad.size else []
+        for i, g in zip(bad, est):
+            pending.append((float(g), start + int(i), c[i], e[i], sp, conn[i], name))
         start += m
-    # refine the cells that can still hold the mesh's minimum
+    pending.sort(key=lambda p: (p[0], p[1]))
     refined = set()
-    while True:
-        T_hi = cell_hi.min() if total else np.inf
-        todo = [g for g, (sw, *_r) in sweeps.items() if g not in refined and not sw.done and cell_t[g] < T_hi]
-        if not todo:
-            break
-        for g in todo:
-            sw, sp, _, _ = sweeps[g]
-            _run(sw, sp, rtol, max_boxes)
+    if per_cell:
+        for _, g, c, e, sp, row, name in pending:
+            sw = _run(_start(c, e), sp, rtol_cells, max_boxes)
+            sweeps[g] = (sw, sp, row, name)
             cell_t[g], cell_hi[g] = sw.lo, sw.hi
+        # refine the cells that can still hold the mesh's minimum
+        while True:
+            T_hi = cell_hi.min() if total else np.inf
+            todo = [g for g, (sw, *_r) in sweeps.items() if g not in refined and not sw.done and cell_t[g] < T_hi]
+            if not todo:
+                break
+            for g in todo:
+                sw, sp, _, _ = sweeps[g]
+                _run(sw, sp, rtol, max_boxes)
+                cell_t[g], cell_hi[g] = sw.lo, sw.hi
+                refined.add(g)
+    else:
+        # the mesh's minimum only: cells in the order of their first guess, each swept (to rtol) no further than
+        # the smallest t where a loss is proven so far
+        T_hi = math.inf
+        for _, g, c, e, sp, row, name in pending:
+            sw = _run(_start(c, e), sp, rtol, max_boxes, stop_at=T_hi)
+            sweeps[g] = (sw, sp, row, name)
+            cell_t[g], cell_hi[g] = sw.lo, sw.hi
+            T_hi = min(T_hi, sw.hi)
             refined.add(g)
     T = float(cell_t.min()) if total else 1.0
     witness = None
@@ -506,6 +542,7 @@ def _safe_step(P, D, blocks, rtol, rtol_cells, max_boxes, verify, t0):
     elif T == 0.0:
         check_valid = False
     stats = {"cells": total, "root_proven": root_proven, "searched": len(sweeps), "refined": len(refined),
+             "per_cell": bool(per_cell),
              "steps_back": steps_back}
     return SafeStepResult(t=T, cell_t=cell_t, cell_hi=cell_hi, witness=witness, check_valid=check_valid,
                           seconds=time.perf_counter() - t0, stats=stats)
