@@ -130,6 +130,14 @@ def test_invalid_start():
     X[[1, 2]] = X[[2, 1]]  # inverted already
     r = safe_step(X, [("tetra", [[0, 1, 2, 3]])], np.zeros_like(X))
     assert r.t == 0.0 and not r.check_valid
+    assert r.witness["t"] == 0.0 and r.witness["exact_det"] < 0
+    # one cell folded inside at the start, beside a valid one: no step is safe, whatever the displacement
+    from hexsos_plugins.examples import inside_invalid_hex, unit_cube
+
+    P = np.concatenate([inside_invalid_hex(), unit_cube() + 10.0])
+    H = np.arange(16).reshape(2, 8)
+    r = safe_step(P, H, np.ones_like(P))
+    assert r.t == 0.0 and r.cell_t[0] == 0.0 and r.cell_t[1] == 1.0 and r.witness["cell"] == 0
 
 
 def test_bad_input():

@@ -145,7 +145,7 @@ def _rounding_bound(Y, conn, g, K):
     sh = -K[:, None]
     eps = _up(np.ldexp(eps, sh))
     rng = _up(np.ldexp(rng, sh))
-    A = _up(g[None, None, :] * (rng + eps)[:, :, None])  # (m, component, direction)
+    A = _up(g[None, None, :] * (rng + 2.0 * eps)[:, :, None])  # (m, component, direction): both geometries
     E = _up(g[None, None, :] * eps[:, :, None])
     tot = np.zeros(A.shape[0])
     for s in ((0, 1, 2), (0, 2, 1), (1, 0, 2), (1, 2, 0), (2, 0, 1), (2, 1, 0)):
@@ -479,6 +479,11 @@ def _safe_step(P, D, blocks, rtol, rtol_cells, max_boxes, verify, t0, per_cell=T
     cell_hi = np.full(total, np.inf)
     sweeps = {}  # global cell index -> (sweep, space, block conn row, type)
     pending = []  # (first guess, global index, coefficients, bounds, space, conn row, type)
+    # the mesh as given: a cell not proven valid at t = 0 has no safe step (and is not swept)
+    from .certify import check
+
+    at_start = check(P, blocks)
+    start_bad = np.asarray(at_start.status) != 1
     start = 0
     root_proven = 0
     for name, conn in blocks:
@@ -490,7 +495,10 @@ def _safe_step(P, D, blocks, rtol, rtol_cells, max_boxes, verify, t0, per_cell=T
         ok = low > 0.0
         root_proven += int(ok.sum())
         sp = _space(name)
-        bad = np.flatnonzero(~ok)
+        finite = np.isfinite(c).reshape(m, -1).all(axis=1) & np.isfinite(e).reshape(m, -1).all(axis=1)
+        skip = start_bad[start:start + m] | ~finite  # no safe step proven (cell_t = 0)
+        cell_t[start:start + m][skip] = 0.0
+        bad = np.flatnonzero(~ok & ~skip)
         est = _estimate(c[bad], sp.vidx) if bad.size else []
         for i, g in zip(bad, est):
             pending.append((float(g), start + int(i), c[i], e[i], sp, conn[i], name))
@@ -525,7 +533,9 @@ def _safe_step(P, D, blocks, rtol, rtol_cells, max_boxes, verify, t0, per_cell=T
             refined.add(g)
     T = float(cell_t.min()) if total else 1.0
     witness = None
-    if T < 1.0:
+    if start_bad.any():  # invalid as given: the check's witness, at t = 0
+        witness = _start_witness(P, blocks, at_start)
+    elif T < 1.0:
         witness = _find_witness(P, D, sweeps, cell_t, T)
     check_valid = True
     steps_back = 0
@@ -546,6 +556,21 @@ def _safe_step(P, D, blocks, rtol, rtol_cells, max_boxes, verify, t0, per_cell=T
              "steps_back": steps_back}
     return SafeStepResult(t=T, cell_t=cell_t, cell_hi=cell_hi, witness=witness, check_valid=check_valid,
                           seconds=time.perf_counter() - t0, stats=stats)
+
+
+def _start_witness(P, blocks, result):
+    """A cell proven invalid as given (t = 0) and its point, confirmed in rational arithmetic; None if the mesh
+    is only undecided there."""
+    start = 0
+    for name, conn in blocks:
+        for i in np.flatnonzero(np.asarray(result.status[start:start + len(conn)]) == 0):
+            x = np.asarray(result.argmin[start + i], dtype=np.float64)
+            val = exact_det_at(_exact_cell(P, np.zeros_like(P), conn[i], 0.0), name, x)
+            if val <= 0:
+                return {"cell": int(start + i), "cell_type": name, "point": x, "t": 0.0, "det": float(val),
+                        "exact_det": val}
+        start += len(conn)
+    return None
 
 
 def _find_witness(P, D, sweeps, cell_t, T):
