@@ -14,11 +14,12 @@ mesh and seed (amplitudes relative to the mesh's median edge length h):
 * ``smooth``: three random Fourier modes per component, amplitude 1-4 h over the mesh;
 * ``rough``: an independent Gaussian vector per node, 0.3-1.5 h;
 * ``swirl``: the nodes rotated about the vertical axis by an angle that grows with height (a twisting part:
-  120-300 degrees from bottom to top), the displacement the chord from x to the rotated x.
+  90-200 degrees from bottom to top), the displacement the chord from x to the rotated x.
 
-Per run: the safe step t*, plain halving's t and number of checks, seconds of each; a *miss* is a run where the
-plain t lies past the witness's t (an inversion between samples, proven), *conservative* how much of the safe
-step plain halving gives away (t* / t_plain when it does not miss). Dense sampling in (space, t) (every node's
+Per run: the safe step t* (``per_cell=False``: the mesh's t*, what the plain ways give), plain halving's t and
+number of checks, and a plain bisection on check's verdict to the same resolution as t* (2^-24 relative: the
+plain way to a tight step), seconds of each; a *miss* is a run where the plain t lies past the witness's t (an
+inversion between samples, proven); halving's step / t* says how much of the safe step halving gives away. Dense sampling in (space, t) (every node's
 reference point and 8 interior points per cell, 513 values of t) checks every run: no sampled loss before t*.
 
 The line-search question (``--no-line-search`` skips it): the repair's stage 2 (:mod:`hexsos_plugins.optimize`)
@@ -84,7 +85,7 @@ def field(kind, P, h, seed):
         return rng.uniform(0.3, 1.5) * h * rng.standard_normal(P.shape)
     if kind == "swirl":
         c = (lo + hi) / 2
-        ang = np.radians(rng.uniform(120, 300)) * X[:, 2] + rng.uniform(0, 0.3)
+        ang = np.radians(rng.uniform(90, 200)) * X[:, 2] + rng.uniform(0, 0.3)
         x, y = P[:, 0] - c[0], P[:, 1] - c[1]
         R = np.stack([c[0] + np.cos(ang) * x - np.sin(ang) * y, c[1] + np.sin(ang) * x + np.cos(ang) * y, P[:, 2]], 1)
         return R - P
@@ -101,6 +102,22 @@ def plain_halving(P, cells, D, max_halvings=40):
             return t, k + 1
         t *= 0.5
     return 0.0, max_halvings + 1
+
+
+def plain_bisection(P, cells, D, rtol=2.0**-24):
+    """Bisection on check's verdict between a valid t (0) and an invalid one (1), to rtol: (t, checks). Each
+    sample is proven valid or not; what lies between samples is not looked at."""
+    if bool(np.all(check(P + D, cells).status == 1)):
+        return 1.0, 1
+    lo, hi, n = 0.0, 1.0, 1
+    while hi - lo > rtol * max(lo, 2.0**-40):
+        mid = 0.5 * (lo + hi)
+        n += 1
+        if bool(np.all(check(P + mid * D, cells).status == 1)):
+            lo = mid
+        else:
+            hi = mid
+    return lo, n
 
 
 def _sample_pcoords(name, n, rng):
@@ -209,22 +226,29 @@ def run(quick=False, line_search=True):
             for seed in seeds:
                 D = field(kind, P, h, 1000 * seed + len(label))
                 t0 = time.perf_counter()
-                r = safe_step(P, cells, D)
+                r = safe_step(P, cells, D, per_cell=False)  # the mesh's t*, as plain halving gives
                 t_safe = time.perf_counter() - t0
                 t0 = time.perf_counter()
                 tp, nchecks = plain_halving(P, cells, D)
                 t_plain = time.perf_counter() - t0
+                t0 = time.perf_counter()
+                tb, nbis = plain_bisection(P, cells, D)
+                t_bis = time.perf_counter() - t0
                 ts = np.linspace(0.0, 1.0, 513)
                 first = dense_first_loss(P, cells, D, ts)
                 w = r.witness
                 miss = w is not None and tp >= w["t"]
+                miss_bis = w is not None and tb >= w["t"]
                 rows.append({"mesh": label, "cells": ncells, "field": kind, "seed": seed, "t_safe": r.t,
                              "witness_t": None if w is None else w["t"], "t_plain": tp, "checks": nchecks,
                              "miss": bool(miss), "seconds_safe": t_safe, "seconds_plain": t_plain,
+                             "t_bisection": tb, "bisection_checks": nbis, "bisection_miss": bool(miss_bis),
+                             "seconds_bisection": t_bis,
                              "dense_first_loss": first, "dense_sound": bool(first >= r.t),
                              "check_valid": r.check_valid, "searched": r.stats["searched"]})
                 print(f"{label:18s} {kind:6s} seed {seed}: t* {r.t:.6g} plain {tp:.6g} ({nchecks} checks) "
-                      f"{'MISS' if miss else ''} safe {t_safe:.2f}s plain {t_plain:.2f}s dense {first:.4g}",
+                      f"{'MISS' if miss else ''} bisection {tb:.6g} ({nbis}) {'MISS' if miss_bis else ''} "
+                      f"safe {t_safe:.2f}s plain {t_plain:.2f}s bisection {t_bis:.2f}s dense {first:.4g}",
                       file=sys.stderr, flush=True)
     out = {"runs": rows}
     if line_search:
@@ -234,20 +258,24 @@ def run(quick=False, line_search=True):
 
 def table(out) -> str:
     rows = out["runs"]
-    lines = ["| mesh | field | runs | plain misses an inversion | plain gives away (median t*/t_plain, no miss) | "
-             "checks (median) | safe step s (median) | plain s (median) | ratio | dense sampling sound |",
-             "|---|---|---|---|---|---|---|---|---|---|"]
+    lines = ["| mesh | field | runs | halving misses an inversion | halving's step / t* (median) | "
+             "halving: checks | bisection misses | bisection: checks | safe step s | halving s | bisection s | "
+             "safe / bisection time | dense sampling sound |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for mesh in dict.fromkeys(r["mesh"] for r in rows):
         for kind in ("smooth", "rough", "swirl"):
             g = [r for r in rows if r["mesh"] == mesh and r["field"] == kind]
             if not g:
                 continue
-            ok = [r["t_safe"] / r["t_plain"] for r in g if not r["miss"] and r["t_plain"] > 0]
+            ok = [r["t_plain"] / r["t_safe"] for r in g if not r["miss"] and r["t_safe"] > 0]
             ts = float(np.median([r["seconds_safe"] for r in g]))
             tp = float(np.median([r["seconds_plain"] for r in g]))
+            tb = float(np.median([r["seconds_bisection"] for r in g]))
             lines.append(f"| {mesh} ({g[0]['cells']} cells) | {kind} | {len(g)} | {sum(r['miss'] for r in g)} | "
                          f"{np.median(ok) if ok else float('nan'):.2f} | {np.median([r['checks'] for r in g]):.0f} | "
-                         f"{ts:.2f} | {tp:.2f} | {ts / tp:.2f} | {sum(r['dense_sound'] for r in g)}/{len(g)} |")
+                         f"{sum(r['bisection_miss'] for r in g)} | {np.median([r['bisection_checks'] for r in g]):.0f} | "
+                         f"{ts:.3f} | {tp:.3f} | {tb:.3f} | {ts / max(tb, 1e-9):.1f} | "
+                         f"{sum(r['dense_sound'] for r in g)}/{len(g)} |")
     if out.get("line_search"):
         lines += ["", "| repair (default) on | hexes | energy evaluations | infeasible trials | of which SJ below threshold "
                   "only | Bernstein coefficient <= 0 | ms per evaluation | ms per safe step | median safe fraction |",

@@ -249,3 +249,32 @@ def test_cli_step(tmp_path, capsys):
     assert main(["step", path, "--displacement", "w"]) == 2
     assert "'w'" in capsys.readouterr().err
     assert far >= 0
+
+
+def test_inversion_between_samples_that_halving_misses(tmp_path):
+    """A twisting displacement of a Gmsh mixed mesh: every cell is proven valid at t = 1 (and 1/2), so checking
+    the moved mesh accepts the whole step, yet a pyramid inverts on the way (t about 0.73 to 0.89) and comes
+    back. The safe step stops before it, with a witness that rational arithmetic confirms."""
+    pytest.importorskip("gmsh")
+    from comparison.bench_step import edge_length, field
+    from hexsos_plugins.examples import mixed_msh
+
+    path = tmp_path / "m.msh"
+    mixed_msh(path, order=1, size=0.34)
+    m = hs.read(str(path))
+    P, cells = m.points, [(t, np.asarray(c)) for t, c in m.cells]
+    D = field("swirl", P, edge_length(P, cells), 1000 + len("mixed linear"))
+    assert np.all(hs.check(P + D, cells).status == 1)  # plain halving stops here: t = 1
+    assert np.all(hs.check(P + 0.5 * D, cells).status == 1)
+    r = safe_step(P, cells, D, per_cell=False)
+    assert 0.5 < r.t < 0.9 and r.check_valid
+    w = r.witness
+    assert w["cell_type"] == "pyramid" and w["exact_det"] <= 0 and w["t"] <= r.t * (1 + 1e-6)
+    name, conn, s = next((n, c, s) for n, c, s in _blocks(cells) if n == w["cell_type"])
+    row = conn[w["cell"] - s][None]
+    assert hs.check(P + w["t"] * D, [(name, row)]).status[0] == 0
+    # dense sampling at the witness's point: negative on the way, positive at both ends
+    ts = np.linspace(w["t"], 0.85, 20)
+    vals = [kernel.det_at(P + t * D, row, name, w["point"])[0] for t in ts[1:]]
+    assert max(vals) < 0
+    assert kernel.det_at(P + D, row, name, w["point"])[0] > 0 and kernel.det_at(P, row, name, w["point"])[0] > 0

@@ -26,9 +26,10 @@ How (no step rests on an unbounded rounding):
 4. **Witness.** At the right end of the limiting cell's last interval (or a few widths further, where the kernel's
    minimizer of ``fl(x + t d)`` gives the point), det J of the exact geometry ``x + t d`` (rationals: t is dyadic) is
    evaluated at the point in rational arithmetic: the witness is reported only when that value is <= 0.
-5. **The mesh at t*.** :func:`hexsos_plugins.check` of ``fl(x + t* d)`` (the mesh a solver would build) must prove
-   every cell valid; if rounding of the points makes a cell near zero undecided, t* steps back to a smaller
-   proven dyadic value until it does.
+5. **The mesh at t*.** The mesh a solver would build, ``fl(x + t* d)``, must be proven valid as given (the
+   kernel's rigorous coefficients of it, and the same branch-and-bound in the reference coordinates where they
+   do not settle); if rounding of the points leaves a cell near zero unproven, t* steps back to a smaller proven
+   dyadic value until it is.
 
 Every t returned is a dyadic rational (a float with a short mantissa), so x + t d is the same number everywhere.
 """
@@ -370,7 +371,7 @@ class SafeStepResult:
     :attr:`hexsos_plugins.CheckResult.argmin`) with
     det J of the exact ``x + t d`` at the reference point, <= 0 by rational arithmetic (det: that value rounded
     to a float, world units), or None (the whole step is safe, or no loss was proven). ``check_valid``: whether
-    :func:`hexsos_plugins.check` proves every cell of fl(x + t d) valid (True unless t = 0)."""
+    every cell of fl(x + t d), the points as a float array, is proven valid as given (True unless t = 0)."""
 
     t: float
     cell_t: np.ndarray
@@ -426,7 +427,7 @@ def safe_step(points, cells, displacement, *, rtol: float = 2.0**-24, rtol_cells
     jobs : int, keyword-only
         Threads of the compiled kernel (0: one per core).
     verify : bool, keyword-only
-        Check fl(x + t* d) with :func:`hexsos_plugins.check` (and step back until it proves every cell valid).
+        Prove every cell of fl(x + t* d) valid as given (and step back until it is).
     per_cell : bool, keyword-only
         Resolve every cell's own safe fraction (default). False: only the mesh's t* and its witness; each cell
         is then swept no further than needed to show it is not the minimum (``cell_t`` holds proven lower
@@ -540,11 +541,8 @@ def _safe_step(P, D, blocks, rtol, rtol_cells, max_boxes, verify, t0, per_cell=T
     check_valid = True
     steps_back = 0
     if verify and T > 0.0:
-        from .pipeline import check
-
         while T > 0.0:
-            r = check(P + T * D, blocks)
-            if bool(np.all(r.status == 1)):
+            if _valid_as_given(P + T * D, blocks, max_boxes):
                 break
             steps_back += 1  # every t below a proven t is proven too: step back to a shorter dyadic t
             T = float(np.ldexp(np.floor(np.ldexp(T * (1.0 - 2.0 ** (steps_back - 24)), 40)), -40))
@@ -556,6 +554,30 @@ def _safe_step(P, D, blocks, rtol, rtol_cells, max_boxes, verify, t0, per_cell=T
              "steps_back": steps_back}
     return SafeStepResult(t=T, cell_t=cell_t, cell_hi=cell_hi, witness=witness, check_valid=check_valid,
                           seconds=time.perf_counter() - t0, stats=stats)
+
+
+def _valid_as_given(Y, blocks, max_boxes):
+    """Whether every cell of the mesh Y, as given (floats), is proven valid: the kernel's rigorous coefficients,
+    then the branch-and-bound of the search on the cells whose smallest coefficient does not clear its bound
+    (a budget of ``max_boxes`` boxes a cell; :func:`hexsos_plugins.check` would bring its full machinery, whose
+    search can take long on a cell whose minimum is this close to 0)."""
+    from .kernel import coefficients
+
+    for name, conn in blocks:
+        m = conn.shape[0]
+        if m == 0:
+            continue
+        b, err, _, _ = coefficients(Y, conn, np.arange(m, dtype=np.int64), name)
+        low = b.min(axis=1) - err
+        if not np.all(np.isfinite(b)):
+            return False
+        sp = _space(name)
+        for i in np.flatnonzero(~(low > 0.0)):
+            c = np.repeat(b[i][:, None], 4, axis=1)  # constant in t
+            e = np.full_like(c, _up(err[i]))
+            if _prove(c, e, sp, max_boxes)[0] != _PROVEN:
+                return False
+    return True
 
 
 def _start_witness(P, blocks, result):
