@@ -293,7 +293,9 @@ def _run(sw, sp, rtol, max_boxes, stop_at=math.inf):
             return sw
         m, k, c, e = sw.stack.pop()
         a = k * 2.0**-m
-        r, x = _prove(c, e, sp, max_boxes)
+        # a wide interval gets a small budget of boxes: halving it in t is cheaper than a deep search in space
+        # for an interval that is not provable at all (it reaches past the cell's loss)
+        r, x = _prove(c, e, sp, min(max_boxes, 64 << min(m, 20)))
         if r == _PROVEN:
             sw.lo = (k + 1) * 2.0**-m
             continue
