@@ -104,6 +104,33 @@ def plain_halving(P, cells, D, max_halvings=40):
     return 0.0, max_halvings + 1
 
 
+def _timed_child(fn, args, limit):
+    """fn(*args) in a forked child with a wall-clock limit: (result, seconds) or (None, None) past the limit
+    (check's search can take very long on a cell whose minimum is nearly 0: such a run is reported, not waited
+    for)."""
+    import multiprocessing as mp
+
+    ctx = mp.get_context("fork")
+    q = ctx.Queue()
+
+    def target():
+        t0 = time.perf_counter()
+        out = fn(*args)
+        q.put((out, time.perf_counter() - t0))
+
+    p = ctx.Process(target=target)
+    p.start()
+    try:
+        out = q.get(timeout=limit)
+    except Exception:  # queue.Empty: past the limit
+        out = (None, None)
+    p.join(timeout=1)
+    if p.is_alive():
+        p.kill()
+        p.join()
+    return out
+
+
 def plain_bisection(P, cells, D, rtol=2.0**-24):
     """Bisection on check's verdict between a valid t (0) and an invalid one (1), to rtol: (t, checks). Each
     sample is proven valid or not; what lies between samples is not looked at."""
@@ -216,7 +243,7 @@ def line_search_study(quick):
 
 
 # --- the main comparison ------------------------------------------------------------------------------------------
-def run(quick=False, line_search=True):
+def run(quick=False, line_search=True, limit=120.0):
     rows = []
     seeds = range(4) if quick else range(10)
     for label, P, cells in meshes(quick):
@@ -228,17 +255,15 @@ def run(quick=False, line_search=True):
                 t0 = time.perf_counter()
                 r = safe_step(P, cells, D, per_cell=False)  # the mesh's t*, as plain halving gives
                 t_safe = time.perf_counter() - t0
-                t0 = time.perf_counter()
-                tp, nchecks = plain_halving(P, cells, D)
-                t_plain = time.perf_counter() - t0
-                t0 = time.perf_counter()
-                tb, nbis = plain_bisection(P, cells, D)
-                t_bis = time.perf_counter() - t0
+                res, t_plain = _timed_child(plain_halving, (P, cells, D), limit)
+                tp, nchecks = res if res is not None else (None, None)
+                res, t_bis = _timed_child(plain_bisection, (P, cells, D), limit)
+                tb, nbis = res if res is not None else (None, None)
                 ts = np.linspace(0.0, 1.0, 513)
                 first = dense_first_loss(P, cells, D, ts)
                 w = r.witness
-                miss = w is not None and tp >= w["t"]
-                miss_bis = w is not None and tb >= w["t"]
+                miss = w is not None and tp is not None and tp >= w["t"]
+                miss_bis = w is not None and tb is not None and tb >= w["t"]
                 rows.append({"mesh": label, "cells": ncells, "field": kind, "seed": seed, "t_safe": r.t,
                              "witness_t": None if w is None else w["t"], "t_plain": tp, "checks": nchecks,
                              "miss": bool(miss), "seconds_safe": t_safe, "seconds_plain": t_plain,
@@ -246,35 +271,41 @@ def run(quick=False, line_search=True):
                              "seconds_bisection": t_bis,
                              "dense_first_loss": first, "dense_sound": bool(first >= r.t),
                              "check_valid": r.check_valid, "searched": r.stats["searched"]})
-                print(f"{label:18s} {kind:6s} seed {seed}: t* {r.t:.6g} plain {tp:.6g} ({nchecks} checks) "
-                      f"{'MISS' if miss else ''} bisection {tb:.6g} ({nbis}) {'MISS' if miss_bis else ''} "
-                      f"safe {t_safe:.2f}s plain {t_plain:.2f}s bisection {t_bis:.2f}s dense {first:.4g}",
-                      file=sys.stderr, flush=True)
-    out = {"runs": rows}
+                fmt = lambda v, f: "timeout" if v is None else format(v, f)  # noqa: E731
+                print(f"{label:18s} {kind:6s} seed {seed}: t* {r.t:.6g} plain {fmt(tp, '.6g')} ({nchecks} checks) "
+                      f"{'MISS' if miss else ''} bisection {fmt(tb, '.6g')} ({nbis}) {'MISS' if miss_bis else ''} "
+                      f"safe {t_safe:.2f}s plain {fmt(t_plain, '.2f')}s bisection {fmt(t_bis, '.2f')}s "
+                      f"dense {first:.4g}", file=sys.stderr, flush=True)
+    out = {"runs": rows, "limit_seconds": limit}
     if line_search:
         out["line_search"] = line_search_study(quick)
     return out
+
+
+def _median(values):
+    v = [x for x in values if x is not None]
+    return float(np.median(v)) if v else float("nan")
 
 
 def table(out) -> str:
     rows = out["runs"]
     lines = ["| mesh | field | runs | halving misses an inversion | halving's step / t* (median) | "
              "halving: checks | bisection misses | bisection: checks | safe step s | halving s | bisection s | "
-             "safe / bisection time | dense sampling sound |",
+             f"plain runs past {out.get('limit_seconds', 0):.0f} s | dense sampling sound |",
              "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for mesh in dict.fromkeys(r["mesh"] for r in rows):
         for kind in ("smooth", "rough", "swirl"):
             g = [r for r in rows if r["mesh"] == mesh and r["field"] == kind]
             if not g:
                 continue
-            ok = [r["t_plain"] / r["t_safe"] for r in g if not r["miss"] and r["t_safe"] > 0]
-            ts = float(np.median([r["seconds_safe"] for r in g]))
-            tp = float(np.median([r["seconds_plain"] for r in g]))
-            tb = float(np.median([r["seconds_bisection"] for r in g]))
+            ok = [r["t_plain"] / r["t_safe"] for r in g if r["t_plain"] is not None and not r["miss"]
+                  and r["t_safe"] > 0]
+            late = sum((r["t_plain"] is None) + (r["t_bisection"] is None) for r in g)
             lines.append(f"| {mesh} ({g[0]['cells']} cells) | {kind} | {len(g)} | {sum(r['miss'] for r in g)} | "
-                         f"{np.median(ok) if ok else float('nan'):.2f} | {np.median([r['checks'] for r in g]):.0f} | "
-                         f"{sum(r['bisection_miss'] for r in g)} | {np.median([r['bisection_checks'] for r in g]):.0f} | "
-                         f"{ts:.3f} | {tp:.3f} | {tb:.3f} | {ts / max(tb, 1e-9):.1f} | "
+                         f"{_median(ok):.2f} | {_median(r['checks'] for r in g):.0f} | "
+                         f"{sum(r['bisection_miss'] for r in g)} | {_median(r['bisection_checks'] for r in g):.0f} | "
+                         f"{_median(r['seconds_safe'] for r in g):.3f} | {_median(r['seconds_plain'] for r in g):.3f} | "
+                         f"{_median(r['seconds_bisection'] for r in g):.3f} | {late} | "
                          f"{sum(r['dense_sound'] for r in g)}/{len(g)} |")
     if out.get("line_search"):
         lines += ["", "| repair (default) on | hexes | energy evaluations | infeasible trials | of which SJ below threshold "
@@ -293,8 +324,10 @@ def main(argv=None) -> int:
     p.add_argument("--quick", action="store_true", help="fewer seeds, coarser meshes")
     p.add_argument("--json", metavar="OUT", help="write every run as JSON")
     p.add_argument("--no-line-search", action="store_true", help="skip the repair's line-search measurement")
+    p.add_argument("--limit", type=float, default=120.0, metavar="S",
+                   help="wall-clock limit of one plain run (halving or bisection), default 120 s")
     a = p.parse_args(argv)
-    out = run(quick=a.quick, line_search=not a.no_line_search)
+    out = run(quick=a.quick, line_search=not a.no_line_search, limit=a.limit)
     print(table(out))
     if a.json:
         with open(a.json, "w") as fh:
