@@ -22,7 +22,7 @@ plain way to a tight step), seconds of each; a *miss* is a run where the plain t
 inversion between samples, proven); halving's step / t* says how much of the safe step halving gives away. Dense sampling in (space, t) (every node's
 reference point and 8 interior points per cell, 513 values of t) checks every run: no sampled loss before t*.
 
-The line-search question (``--no-line-search`` skips it): the repair's stage 2 (:mod:`hexsos_plugins.optimize`)
+The line-search question (``--no-line-search`` skips it): the repair's stage 2 (:mod:`hexsos_plugins.meshrepair.optimize`)
 backtracks by halving from the L-BFGS step while the barrier energy is infinite. The benchmark runs the default
 repair on damaged meshes with the energy wrapped (nothing in the repair is changed), records every trial step, which
 of them were rejected as infeasible and why (a scaled-Jacobian sample below the round's threshold, or a Bernstein
@@ -42,9 +42,9 @@ import time
 import numpy as np
 
 from hexsos_plugins import check, read
-from hexsos_plugins.elements import ELEMENTS
+from hexsos_plugins.cells.elements import ELEMENTS
 from hexsos_plugins.kernel import det_at
-from hexsos_plugins.safe_step import safe_step
+from hexsos_plugins import safe_step
 
 
 # --- meshes and fields ----------------------------------------------------------------------------------------
@@ -177,9 +177,10 @@ def dense_first_loss(P, cells, D, ts, seed=0):
 # --- the line-search measurement ----------------------------------------------------------------------------------
 def line_search_study(quick):
     """Run the default repair with its barrier energy observed; see the module docstring."""
-    from hexsos_plugins import optimize, repair
+    from hexsos_plugins import repair
+    from hexsos_plugins.meshrepair import optimize
     from hexsos_plugins.examples import gmsh_mesh
-    from hexsos_plugins.meshrepair import boundary_vertex_mask, hex_edge_length
+    from hexsos_plugins.meshrepair.paper import boundary_vertex_mask, hex_edge_length
 
     rows = []
     for n, frac, amp, seed in ((5, 0.05, 0.6, 0), (6, 0.08, 0.7, 1)) if quick else \

@@ -566,7 +566,7 @@ def _node_displacement(hx, displacement, view, step):
     NodeData vector view."""
     n = hx.node_tags.size
     if view is not None:
-        gmsh = _gmsh()
+        gmsh = gmsh_api()
         kind, tags, data, _, ncomp = gmsh.view.getModelData(int(view), int(step))
         if kind != "NodeData" or ncomp not in (2, 3):
             raise GmshModelError(f"safe_step_model: expected view {view} to hold NodeData vectors, found {kind} "
@@ -594,7 +594,7 @@ def _node_displacement(hx, displacement, view, step):
 
 def safe_step_model(displacement=None, *, view=None, step: int = 0, post_views: bool = True, rtol=None):
     """The certified largest fraction t* of a displacement of the current Gmsh model that keeps every 3-D element
-    valid (:func:`hexsos_plugins.safe_step.safe_step`).
+    valid (:func:`hexsos_plugins.safe_step`).
 
     Parameters
     ----------
@@ -609,11 +609,11 @@ def safe_step_model(displacement=None, *, view=None, step: int = 0, post_views: 
 
     Returns
     -------
-    hexsos_plugins.safe_step.SafeStepResult
+    hexsos_plugins.SafeStepResult
         ``t`` the model's t*; ``extra["gmsh"]`` the :class:`GmshCells`, ``extra["witness_element_tag"]`` the Gmsh
         tag of the witness element (None without witness), ``extra["gmsh_view"]`` the posted view's tag.
     """
-    from hexsos_plugins.safe_step import safe_step
+    from hexsos_plugins.certify.safe_step import safe_step
 
     if (displacement is None) == (view is None):
         raise GmshModelError("safe_step_model: pass either a displacement or view=TAG")
@@ -626,7 +626,7 @@ def safe_step_model(displacement=None, *, view=None, step: int = 0, post_views: 
     result.extra["witness_element_tag"] = int(hx.element_tags[w["cell"]]) if w is not None else None
     result.extra["gmsh_view"] = None
     if post_views:
-        gmsh = _gmsh()
+        gmsh = gmsh_api()
         old = None
         for tag in gmsh.view.getTags():
             if gmsh.option.getString(f"View[{gmsh.view.getIndex(tag)}].Name") == VIEW_SAFE_STEP:

@@ -25,6 +25,7 @@ _LAZY = {
     "scaled_jacobian": "kernel",
     "RELAXATIONS": "kernel.sos",
     "CELL_TYPES": "cells",
+    "safe_step": "certify.safe_step", "SafeStepResult": "certify.safe_step",
 }
 
 __all__ = [
@@ -44,6 +45,8 @@ __all__ = [
     "SOS_STATUS_NAMES",
     "RELAXATIONS",
     "CELL_TYPES",
+    "safe_step",
+    "SafeStepResult",
 ] + errors.__all__
 
 

@@ -781,7 +781,7 @@ def test_safe_step_model_from_a_view_and_from_arrays(session):
     array give the kernel's answer on the same arrays; the witness maps to its Gmsh element; the view holds
     each element's safe fraction by tag."""
     from hexsos_plugins.examples import gmsh_mesh as ring
-    from hexsos_plugins.safe_step import safe_step
+    from hexsos_plugins import safe_step
 
     P, H = ring("box", 3)
     D = np.zeros_like(P)

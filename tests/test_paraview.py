@@ -248,8 +248,8 @@ def test_missing_dependencies_are_a_vtk_error_that_says_what_to_set(tmp_path, mi
 def test_safe_step_filter_in_pvpython(tmp_path):
     """"HexSOS Safe Step" in ParaView's own Python: the per-cell safe fractions and the witness are what this
     process computes; the witness lies in the moved mesh; a missing array is an error, not a crash."""
-    from hexsos_plugins.elements import world_points
-    from hexsos_plugins.safe_step import safe_step
+    from hexsos_plugins.cells.elements import world_points
+    from hexsos_plugins import safe_step
 
     P, H = structured_grid(3)
     D = np.zeros_like(P)

@@ -1,4 +1,4 @@
-"""The certified largest safe step (hexsos_plugins.safe_step): soundness against exact rational arithmetic and
+"""The certified largest safe step (hexsos_plugins.safe_step, hexsos_plugins.certify.safe_step): soundness against exact rational arithmetic and
 dense sampling in (space, t), on single cells of every type and on Gmsh meshes moved by smooth and rough fields.
 
 Single-cell cases use dyadic nodes and displacements with few bits, so that x + t d at a dyadic t (every t the
@@ -13,10 +13,11 @@ import pytest
 
 import hexsos_plugins as hs
 from exact_reference import exact_det
-from hexsos_plugins import exact, kernel
-from hexsos_plugins.elements import ELEMENTS
+from hexsos_plugins import kernel
+from hexsos_plugins.cells.elements import ELEMENTS
+from hexsos_plugins.kernel import exact
 from hexsos_plugins.errors import InvalidInputError
-from hexsos_plugins.safe_step import exact_det_at, safe_step
+from hexsos_plugins.certify.safe_step import exact_det_at, safe_step
 
 TYPES = list(ELEMENTS)
 LINEAR = ("tetra", "pyramid", "wedge", "hexahedron")

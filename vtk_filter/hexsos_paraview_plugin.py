@@ -1038,7 +1038,7 @@ def main(argv=None) -> int:
 
 
 class HexSOSSafeStepFilter(_HexSOSBase):
-    """The certified largest fraction of a displacement that keeps every cell valid (``hexsos_plugins.safe_step``).
+    """The certified largest fraction of a displacement that keeps every cell valid (``hexsos_plugins.safe_step``, :mod:`hexsos_plugins.certify.safe_step`).
 
     Input: a vtkUnstructuredGrid with a point-data vector array (``SetDisplacement(name)``, default
     ``"displacement"``; 2 components are taken with z = 0). The step moves the points to ``x + t * d``.
@@ -1073,7 +1073,7 @@ class HexSOSSafeStepFilter(_HexSOSBase):
 
     def _execute(self, inp, outputs):
         out, poly_out = outputs
-        kernel, elements, blocks, _ = self._prepare(inp, "safe_step")
+        kernel, elements, blocks, _ = self._prepare(inp, "certify.safe_step")
         arr = inp.GetPointData().GetArray(self._displacement)
         if arr is None:
             pd = inp.GetPointData()
@@ -1090,7 +1090,7 @@ class HexSOSSafeStepFilter(_HexSOSBase):
         cells = [(t, c) for t, c, _ in blocks]
         cell_ids = np.concatenate([ids for _, _, ids in blocks])
         self.UpdateProgress(0.0)
-        step = sys.modules["hexsos_plugins.safe_step"]
+        step = sys.modules["hexsos_plugins.certify.safe_step"]
         result = step.safe_step(P, cells, D, jobs=0)
         out.ShallowCopy(inp)
         out.GetCellData().AddArray(_vtk_array("hexsos_safe_step", _spread(result.cell_t, cell_ids,

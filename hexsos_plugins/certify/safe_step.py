@@ -483,7 +483,7 @@ def _safe_step(P, D, blocks, rtol, rtol_cells, max_boxes, verify, t0, per_cell=T
     sweeps = {}  # global cell index -> (sweep, space, block conn row, type)
     pending = []  # (first guess, global index, coefficients, bounds, space, conn row, type)
     # the mesh as given: a cell not proven valid at t = 0 has no safe step (and is not swept)
-    from .certify import check
+    from .pipeline import check
 
     at_start = check(P, blocks)
     start_bad = np.asarray(at_start.status) != 1
@@ -563,7 +563,7 @@ def _valid_as_given(Y, blocks, max_boxes):
     then the branch-and-bound of the search on the cells whose smallest coefficient does not clear its bound
     (a budget of ``max_boxes`` boxes a cell; :func:`hexsos_plugins.check` would bring its full machinery, whose
     search can take long on a cell whose minimum is this close to 0)."""
-    from .kernel import coefficients
+    from ..kernel import coefficients
 
     for name, conn in blocks:
         m = conn.shape[0]
