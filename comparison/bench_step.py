@@ -1,6 +1,6 @@
 """Benchmark of the certified safe step (``hexsos_plugins.safe_step``) against the plain halving a user would write.
 
-    python -m comparison.bench_step [--quick] [--json OUT.json] [--no-line-search]
+    python -m comparison.bench_step [--quick] [--json OUT.json] [--no-line-search | --line-search-only] [--limit S]
 
 The plain way: check the moved mesh at t = 1, 1/2, 1/4, ... (``hexsos_plugins.check``, itself certified) and take
 the first t where every cell is proven valid. It proves the mesh valid *at* that t, not on the way there: a cell
@@ -183,8 +183,8 @@ def line_search_study(quick):
     from hexsos_plugins.meshrepair.paper import boundary_vertex_mask, hex_edge_length
 
     rows = []
-    for n, frac, amp, seed in ((5, 0.05, 0.6, 0), (6, 0.08, 0.7, 1)) if quick else \
-            ((5, 0.05, 0.6, 0), (6, 0.08, 0.7, 1), (8, 0.05, 0.6, 2)):
+    for n, frac, amp, seed in ((5, 0.05, 0.6, 0), (6, 0.3, 0.5, 1), (6, 0.6, 0.6, 2)) if quick else \
+            ((5, 0.05, 0.6, 0), (6, 0.3, 0.5, 1), (6, 0.6, 0.6, 2), (8, 0.5, 0.6, 3)):
         P, H = gmsh_mesh("ring", n)
         P = P.copy()
         interior = np.flatnonzero(~boundary_vertex_mask(H, len(P)))
@@ -192,7 +192,8 @@ def line_search_study(quick):
         pick = rng.choice(interior, size=max(1, int(frac * interior.size)), replace=False)
         h = float(np.median(hex_edge_length(P[H])))
         P[pick] += amp * h * rng.standard_normal((pick.size, 3))
-        log = {"evals": 0, "eval_seconds": 0.0, "infeasible": 0, "by_sj": 0, "by_bernstein": 0, "searches": []}
+        log = {"evals": 0, "eval_seconds": 0.0, "infeasible": 0, "by_sj": 0, "by_bernstein": 0, "searches": [],
+               "times": []}
         original = optimize.Problem.barrier_energy
         state = {"x": None, "trial": 0}
 
@@ -200,6 +201,7 @@ def line_search_study(quick):
             t0 = time.perf_counter()
             out = original(self, x, t, *a, **k)
             log["eval_seconds"] += time.perf_counter() - t0
+            log["times"].append(time.perf_counter() - t0)
             log["evals"] += 1
             if k.get("grad", True) is False:
                 return out
@@ -216,13 +218,25 @@ def line_search_study(quick):
                 state["x"] = x.copy()
             return out
 
+        original_pv = optimize.project_valid
+        pv = {"calls": 0, "seconds": 0.0}
+
+        def observed_pv(*a, **k):  # the boundary projection's own halving (vertices step back by halves)
+            t0 = time.perf_counter()
+            out = original_pv(*a, **k)
+            pv["calls"] += 1
+            pv["seconds"] += time.perf_counter() - t0
+            return out
+
         optimize.Problem.barrier_energy = observed
+        optimize.project_valid = observed_pv
         try:
             t0 = time.perf_counter()
             res = repair(P, H)
             seconds = time.perf_counter() - t0
         finally:
             optimize.Problem.barrier_energy = original
+            optimize.project_valid = original_pv
         # a safe step on the directions of the rejected trials (from the last accepted point)
         ss_time, ss_fracs = 0.0, []
         for prob, x0, x1 in log["searches"][:20]:
@@ -235,9 +249,10 @@ def line_search_study(quick):
         n_ss = max(1, min(20, len(log["searches"])))
         rows.append({"mesh": f"ring n={n}, {pick.size} nodes moved {amp} h", "hexes": int(H.shape[0]),
                      "repair_success": bool(res.success), "repair_seconds": seconds,
+                     "projection_calls": pv["calls"], "projection_seconds": pv["seconds"],
                      "energy_evals": log["evals"], "infeasible_trials": log["infeasible"],
                      "infeasible_by_sj_only": log["by_sj"], "infeasible_by_bernstein": log["by_bernstein"],
-                     "eval_ms": 1e3 * log["eval_seconds"] / max(1, log["evals"]),
+                     "eval_ms": 1e3 * float(np.median(log["times"])) if log["times"] else float("nan"),
                      "safe_step_ms": 1e3 * ss_time / n_ss,
                      "safe_step_fraction_median": float(np.median(ss_fracs)) if ss_fracs else None})
     return rows
@@ -309,14 +324,17 @@ def table(out) -> str:
                          f"{_median(r['seconds_bisection'] for r in g):.3f} | {late} | "
                          f"{sum(r['dense_sound'] for r in g)}/{len(g)} |")
     if out.get("line_search"):
-        lines += ["", "| repair (default) on | hexes | energy evaluations | infeasible trials | of which SJ below threshold "
-                  "only | Bernstein coefficient <= 0 | ms per evaluation | ms per safe step | median safe fraction |",
-                  "|---|---|---|---|---|---|---|---|---|"]
+        lines += ["", "| repair (default) on | hexes | repair s | energy evaluations | infeasible trials | of which SJ below "
+                  "threshold only | Bernstein coefficient <= 0 | ms per evaluation (median) | ms per safe step | "
+                  "median safe fraction | boundary projections (halving) s |",
+                  "|---|---|---|---|---|---|---|---|---|---|---|"]
         for r in out["line_search"]:
             med = r["safe_step_fraction_median"]
-            lines.append(f"| {r['mesh']} | {r['hexes']} | {r['energy_evals']} | {r['infeasible_trials']} | "
+            lines.append(f"| {r['mesh']} | {r['hexes']} | {r['repair_seconds']:.1f} | {r['energy_evals']} | "
+                         f"{r['infeasible_trials']} | "
                          f"{r['infeasible_by_sj_only']} | {r['infeasible_by_bernstein']} | {r['eval_ms']:.2f} | "
-                         f"{r['safe_step_ms']:.1f} | {'-' if med is None else f'{med:.3g}'} |")
+                         f"{r['safe_step_ms']:.1f} | {'-' if med is None else f'{med:.3g}'} | "
+                         f"{r['projection_calls']} calls, {r['projection_seconds']:.2f} |")
     return "\n".join(lines)
 
 
@@ -325,10 +343,14 @@ def main(argv=None) -> int:
     p.add_argument("--quick", action="store_true", help="fewer seeds, coarser meshes")
     p.add_argument("--json", metavar="OUT", help="write every run as JSON")
     p.add_argument("--no-line-search", action="store_true", help="skip the repair's line-search measurement")
+    p.add_argument("--line-search-only", action="store_true", help="only the repair's line-search measurement")
     p.add_argument("--limit", type=float, default=120.0, metavar="S",
                    help="wall-clock limit of one plain run (halving or bisection), default 120 s")
     a = p.parse_args(argv)
-    out = run(quick=a.quick, line_search=not a.no_line_search, limit=a.limit)
+    if a.line_search_only:
+        out = {"runs": [], "line_search": line_search_study(a.quick)}
+    else:
+        out = run(quick=a.quick, line_search=not a.no_line_search, limit=a.limit)
     print(table(out))
     if a.json:
         with open(a.json, "w") as fh:
