@@ -333,7 +333,7 @@ def table(out) -> str:
             lines.append(f"| {r['mesh']} | {r['hexes']} | {r['repair_seconds']:.1f} | {r['energy_evals']} | "
                          f"{r['infeasible_trials']} | "
                          f"{r['infeasible_by_sj_only']} | {r['infeasible_by_bernstein']} | {r['eval_ms']:.2f} | "
-                         f"{r['safe_step_ms']:.1f} | {'-' if med is None else f'{med:.3g}'} | "
+                         f"{'-' if med is None else format(r['safe_step_ms'], '.1f')} | {'-' if med is None else f'{med:.3g}'} | "
                          f"{r['projection_calls']} calls, {r['projection_seconds']:.2f} |")
     return "\n".join(lines)
 
