@@ -279,3 +279,12 @@ def test_inversion_between_samples_that_halving_misses(tmp_path):
     vals = [kernel.det_at(P + t * D, row, name, w["point"])[0] for t in ts[1:]]
     assert max(vals) < 0
     assert kernel.det_at(P + D, row, name, w["point"])[0] > 0 and kernel.det_at(P, row, name, w["point"])[0] > 0
+
+
+def test_overflowing_step_is_not_called_safe():
+    """A displacement so large that det J's coefficients overflow: no safe step is claimed, nothing raised."""
+    X = reference_cell("hexahedron")
+    D = np.zeros_like(X)
+    D[6] = [1e300, -1e300, 1e300]
+    r = safe_step(X, [("hexahedron", [list(range(8))])], D)
+    assert r.t < 1.0

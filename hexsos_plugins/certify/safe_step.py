@@ -57,6 +57,7 @@ _SLACK_ABS = 2.0**-1060  # covers underflow (eta / 2 per operation) of up to 2^1
 #: The fractions of the step at which the kernel's coefficients are sampled (t d exact: powers of two).
 T_SAMPLES = (0.0, 0.25, 0.5, 1.0)
 _MAX_DEPTH = 60  # t intervals no narrower than 2^-60
+_MAX_INTERVALS = 1000  # t intervals examined per cell at most
 
 
 def _up(x):
@@ -275,6 +276,7 @@ class _Sweep:
     hi_level: int = 0
     stuck: tuple | None = None  # the (level, index) interval where the sweep stopped
     stuck_item: tuple | None = None  # that interval with its coefficients (where a finer sweep resumes)
+    intervals: int = 0  # intervals examined (a sweep stops at _MAX_INTERVALS)
     done: bool = False
 
 
@@ -291,6 +293,9 @@ def _run(sw, sp, rtol, max_boxes, stop_at=math.inf):
     while sw.stack:
         if sw.lo >= stop_at:
             return sw
+        if sw.intervals >= _MAX_INTERVALS:  # the budget: lo stays what is proven
+            return sw
+        sw.intervals += 1
         m, k, c, e = sw.stack.pop()
         a = k * 2.0**-m
         # a wide interval gets a small budget of boxes: halving it in t is cheaper than a deep search in space
@@ -499,7 +504,10 @@ def _safe_step(P, D, blocks, rtol, rtol_cells, max_boxes, verify, t0, per_cell=T
         root_proven += int(ok.sum())
         sp = _space(name)
         finite = np.isfinite(c).reshape(m, -1).all(axis=1) & np.isfinite(e).reshape(m, -1).all(axis=1)
-        skip = start_bad[start:start + m] | ~finite  # no safe step proven (cell_t = 0)
+        # no coefficient at t = 0 clears its bound (e.g. a cell that grows by hundreds of orders of magnitude over
+        # the step, its start then lost below the scaling): no subdivision can prove anything near t = 0
+        hopeless = ~((c[:, :, 0] - e[:, :, 0]).max(axis=1) > 0.0)
+        skip = start_bad[start:start + m] | ~finite | hopeless  # no safe step proven (cell_t = 0)
         cell_t[start:start + m][skip] = 0.0
         bad = np.flatnonzero(~ok & ~skip)
         est = _estimate(c[bad], sp.vidx) if bad.size else []
@@ -603,6 +611,8 @@ def _find_witness(P, D, sweeps, cell_t, T):
     from ..kernel import run_cells
 
     for g in np.flatnonzero(cell_t == T):
+        if int(g) not in sweeps:  # not swept (its coefficients are not finite numbers): no witness from it
+            continue
         sw, sp, row, name = sweeps[int(g)]
         candidates = []
         if sw.point is not None:
