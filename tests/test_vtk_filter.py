@@ -661,3 +661,34 @@ def test_dependency_paths_order_and_record(tmp_path, monkeypatch, capsys):
     assert plugin.main([]) == 0
     text = capsys.readouterr().out
     assert "PV_PLUGIN_PATH=" in text and "HEXSOS_PYTHONPATH=" in text and "paraview_compat" in text
+
+
+def test_safe_step_filter_in_plain_vtk():
+    """HexSOSSafeStepFilter on a grid of hexes and a tet with a 2-component displacement: each checked cell gets
+    its safe fraction (the kernel's), the tet too; the witness vertex lies in the moved grid; a missing array is
+    a VTK error with empty outputs."""
+    from vtk_filter import HexSOSSafeStepFilter
+
+    P, H = structured_grid(3)
+    P = np.concatenate([P, [[5, 0, 0], [6, 0, 0], [5, 1, 0], [5, 0, 1]]])
+    centre = int(np.argmin(np.linalg.norm(P[:-4] - 0.5, axis=1)))
+    D2 = np.zeros((len(P), 2))
+    D2[centre] = [0.9, 0.9]  # pushed across its neighbours in the plane
+    cells = [(HEX, h) for h in H] + [(QUAD, [0, 1, 2, 3])] + [(TETRA, [len(P) - 4 + i for i in range(4)])]
+    grid = make_grid(P, cells, point_arrays={"u": D2})
+    f = HexSOSSafeStepFilter()
+    f.SetDisplacement("u")
+    f.SetInputDataObject(0, grid)
+    assert f.Update()
+    D = np.column_stack([D2, np.zeros(len(P))])
+    expected = hs.safe_step(P, [("hexahedron", H), ("tetra", [[len(P) - 4 + i for i in range(4)]])], D)
+    got = vtk_to_numpy(f.GetOutputDataObject(0).GetCellData().GetArray("hexsos_safe_step"))
+    assert 0 < expected.t < 1
+    assert np.array_equal(got[: len(H)], expected.cell_t[: len(H)]) and np.isnan(got[len(H)])
+    assert got[-1] == 1.0
+    w = f.GetOutputDataObject(1)
+    assert w.GetNumberOfPoints() == 1
+    assert vtk_to_numpy(w.GetPointData().GetArray("hexsos_cell_id"))[0] == expected.witness["cell"]
+    f.SetDisplacement("nope")
+    assert not f.Update()
+    assert "'nope'" in f.GetLastMessage() and f.GetOutputDataObject(0).GetNumberOfCells() == 0
