@@ -172,6 +172,11 @@ def boundary_model(points, cells, *, feature_angle: float = 45.0) -> BoundaryMod
     f1 = Fi[order[starts[two]]]
     f2 = Fi[order[starts[two] + 1]]
     cosang = (unit[f1] * unit[f2]).sum(axis=1)
+    # a face of no area (collapsed cells) has no normal: its edges are not features for that reason alone (they
+    # made every vertex of a collapsed layer a pinned corner)
+    area = np.linalg.norm(fn, axis=1)
+    flat = area <= 1e-12 * (float(np.median(area)) if area.size else 0.0)
+    cosang = np.where(flat[f1] | flat[f2], 1.0, cosang)
     feature[two] = cosang < np.cos(np.radians(feature_angle))
     feat = uniq[feature]
     nfeat = np.bincount(feat.ravel(), minlength=N)

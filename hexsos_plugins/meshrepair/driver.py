@@ -41,7 +41,7 @@ import numpy as np
 from ..certify import check, validate_arrays
 from ..cells.elements import ELEMENTS
 from ..errors import InvalidInputError
-from ..cells.quality import LINEAR_TYPES, SAMPLES, summary
+from ..cells.quality import IDEAL, LINEAR_TYPES, SAMPLES, summary
 from .options import BOUNDARY_MODES, DEFAULT_MARGIN, DEFAULT_RHO, METHODS, resolve_boundary
 from .paper import MEMORY, boundary_vertex_mask, hex_edge_length, repair_hex, repair_paper
 from .result import RepairResult, readonly
@@ -217,6 +217,28 @@ def smooth_untangle(V, blocks, movable, bad_cells, max_sweeps=30):
         V, bad, nbad = W, bad_w, n_w
         kept += 1
     return V, bad, kept
+
+
+def _spread_collapsed(V, blocks, sizes, movable):
+    """Cells of no size (every vertex at one point) give the energies a zero gradient (a stationary point no
+    descent leaves): their movable vertices start at the ideal cell's shape, a thousandth of the median cell size
+    across, around where they were. Returns (V, number of such cells)."""
+    pos = np.concatenate([s[s > 0] for s in sizes] + [np.zeros(0)])
+    scale = 1e-3 * (float(np.median(pos)) if pos.size else 1.0)
+    count = 0
+    for (name, conn), s in zip(blocks, sizes):
+        rows = np.flatnonzero(~(s > 1e-12 * scale))
+        if rows.size == 0:
+            continue
+        V = V.copy() if count == 0 else V
+        ideal = IDEAL[name] - IDEAL[name].mean(axis=0)
+        ideal = ideal / np.linalg.norm(ideal[_edges_of(name)[:, 1]] - ideal[_edges_of(name)[:, 0]], axis=1).mean()
+        for m in rows:
+            c = conn[m]
+            mv = movable[c]
+            V[c[mv]] = V[c].mean(axis=0) + scale * ideal[mv]
+        count += rows.size
+    return V, count
 
 
 def _vertices(masks, blocks, N):
@@ -538,6 +560,8 @@ class _Optimize:
         try:
             # stage 1: untangle the bad cells and a few rings around them
             ts = time.perf_counter()
+            V, collapsed = _spread_collapsed(V, blocks, sizes, movable)
+            info1["collapsed_cells"] = collapsed
             full = opt.Problem(V, blocks, sizes, np.ones(N, dtype=bool))
             bad = full.bad_cells(V)
             untangled = not any(b.any() for b in bad)
@@ -709,6 +733,21 @@ class _Optimize:
                               if self.boundary == "slide" else "fixed boundary or pinned") + ")")
             elif self.boundary == "fixed":
                 why.append("the boundary is fixed (try boundary='slide')")
+            failed = np.flatnonzero((r.status != 1) & ~stuck)
+            if failed.size:
+                X, Pm = V[H[failed]], pin[H[failed]]
+                same = (X[:, :, None, :] == X[:, None, :, :]).all(axis=3) & Pm[:, :, None] & Pm[:, None, :]
+                same &= ~np.eye(8, dtype=bool)[None]
+                k = int(same.any(axis=(1, 2)).sum())
+                if k:
+                    why.append(f"{k} of the hexes not proven valid have two pinned vertices at one point "
+                               + ("(feature corners of the boundary: try boundary='free')" if self.boundary == "slide"
+                                  else "(fixed boundary or pinned)"))
+            if not untangled:
+                nb = sum(int(b.sum()) for b in opt.Problem(V, blocks, sizes, np.ones(N, dtype=bool)).bad_cells(V))
+                if nb:
+                    why.append(f"the untangling ended with {nb} cell{'s' * (nb != 1)} still inverted at a corner or "
+                               f"with a Bernstein coefficient <= 0")
             message = "; ".join(parts) + (" (" + "; ".join(why) + ")" if why else "") + \
                 "; the best mesh seen is returned"
         stats = {

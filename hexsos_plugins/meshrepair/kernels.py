@@ -51,6 +51,18 @@ def _scatter(g, conn, m, G, k, dE):
                     g[v, a] += dE[a, d] * gi
 
 
+@njit(cache=True, inline="always")
+def _chi(D, e2):
+    """chi(D, eps) = (D + sqrt(eps^2 + D^2)) / 2 and d chi / dD, without the cancellation of D + r for D < 0
+    (there chi = eps^2 / (2 (r - D)): with D = -0.9 and eps = 1e-9 the direct sum is exactly 0)."""
+    r = np.sqrt(e2 + D * D)
+    if D >= 0.0:
+        chi = 0.5 * (D + r)
+    else:
+        chi = 0.5 * e2 / (r - D)
+    return chi, chi / r
+
+
 @njit(cache=True)
 def untangle_corners(V, conn, G, s, eps, theta, g, want_grad):
     """Stage 1 over corner samples G (K, n, 3) (ideal-cell corners folded in): returns (energy, min D)."""
@@ -74,9 +86,7 @@ def untangle_corners(V, conn, G, s, eps, theta, g, want_grad):
             D = _cof(J, C)
             if D < dmin:
                 dmin = D
-            r = np.sqrt(e2 + D * D)
-            chi = 0.5 * (D + r)
-            dchi = chi / r
+            chi, dchi = _chi(D, e2)
             c23 = chi ** (-2.0 / 3.0)
             total += (1.0 - theta) * F * c23 + theta * (D * D + 1.0) / chi
             if want_grad:
@@ -208,9 +218,7 @@ def untangle_bernstein(V, conn, rows, GB, T, s, eps, theta_b, g, want_grad):
             bh = b[p] / s3
             if bh < bmin:
                 bmin = bh
-            rr = np.sqrt(e2 + bh * bh)
-            chi = 0.5 * (bh + rr)
-            dchi = chi / rr
+            chi, dchi = _chi(bh, e2)
             total += theta_b * (bh * bh + 1.0) / chi
             db[p] = theta_b * (2.0 * bh / chi - (bh * bh + 1.0) * dchi / (chi * chi)) / s3
         if want_grad:

@@ -157,9 +157,14 @@ def bernstein_vertex_gradient(X, weights) -> np.ndarray:
 
 
 def _chi(D, eps):
-    r = np.sqrt(eps * eps + D * D)
-    chi = 0.5 * (D + r)
-    return chi, chi / r  # chi and d chi / dD
+    """chi and d chi / dD; for D < 0 as eps^2 / (2 (r - D)), which D + r loses to cancellation (D = -0.9,
+    eps = 1e-9: the sum is exactly 0, and the energy divides by it)."""
+    D = np.asarray(D, dtype=np.float64)
+    e2 = eps * eps
+    r = np.sqrt(e2 + D * D)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        chi = np.where(D >= 0, 0.5 * (D + r), 0.5 * e2 / (r - D))
+    return chi, chi / r
 
 
 # --- the problem -----------------------------------------------------------------------------------------
@@ -185,6 +190,12 @@ class Problem:
         self.free = np.flatnonzero(self.free_mask)
         self.slide = slide
         self.blocks = []
+        # a cell of coincident vertices has size 0, and the energies divide by its size: every size at least a
+        # thousandth of the median size of the mesh's cells (1 when none has a size)
+        pos = np.concatenate([np.asarray(s, dtype=np.float64).ravel() for s in sizes] + [np.zeros(0)])
+        pos = pos[np.isfinite(pos) & (pos > 0)]
+        floor = 1e-3 * float(np.median(pos)) if pos.size else 1.0
+        sizes = [np.where(np.asarray(s, dtype=np.float64) >= floor, s, floor) for s in sizes]
         for (name, conn), s in zip(blocks, sizes):
             rows = np.flatnonzero(self.free_mask[conn].any(axis=1))
             if rows.size == 0:

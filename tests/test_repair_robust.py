@@ -1,0 +1,91 @@
+"""The default repair on inputs that broke it: degenerate and coincident corners, cells of no size, heavily
+inverted starts (issue 22). Each mesh is generated here to reproduce the failure seen on published meshes; every
+verdict is re-established by :func:`hexsos_plugins.check`, not read from the repair's bookkeeping."""
+
+import subprocess
+import sys
+
+import meshio
+import numpy as np
+import pytest
+
+import hexsos_plugins as hs
+from hexsos_plugins import optimize as op
+from hexsos_plugins.examples import structured_grid
+
+
+def _idx(i, j, k, n=4):
+    return (i * (n + 1) + j) * (n + 1) + k
+
+
+def _collapsed_layer():
+    """A 4x4x4 grid whose second layer of vertices lies on the first: 16 flat hexes, 4 of them in the columns
+    along the box's vertical edges (their vertices there are feature corners of the boundary)."""
+    P, H = structured_grid(4)
+    for i in range(5):
+        for j in range(5):
+            P[_idx(i, j, 2)] = P[_idx(i, j, 1)]
+    return P, H
+
+
+def _not_valid(P, H):
+    return np.flatnonzero(hs.check(P, H).status != 1)
+
+
+def test_untangling_energy_is_finite_where_its_direct_formula_divides_by_zero():
+    # a hex inverted at a corner (D about -0.9 in ideal units) with the small eps the schedule reaches: chi =
+    # (D + sqrt(eps^2 + D^2)) / 2 is exactly 0 in floating point; the energy divides by it
+    D, eps = -0.9, 1e-9
+    assert 0.5 * (D + np.sqrt(eps * eps + D * D)) == 0.0  # what the direct formula gives
+    chi, dchi = op._chi(np.array([D]), eps)
+    assert chi[0] == pytest.approx(eps * eps / (2 * (np.hypot(eps, D) - D)), rel=1e-12) and chi[0] > 0
+    P, H = structured_grid(2)
+    P[_idx(1, 1, 1, 2)] = [1.9, 1.9, 1.9]  # the centre vertex far outside: every hex inverted
+    sizes = [np.full(len(H), 0.5)]
+    x = None
+    for compiled in (True, False):
+        prob = op.Problem(P, [("hexahedron", H)], sizes, np.ones(len(P), bool), compiled=compiled)
+        x = prob.x0()
+        e, g = prob.untangle_energy(x, eps, [np.ones(len(H), bool)])
+        assert np.isfinite(e) and np.isfinite(g).all() and np.abs(g).max() > 0
+        if compiled:
+            ec, gc = e, g
+    assert e == pytest.approx(ec, rel=1e-10) and np.allclose(g, gc, rtol=1e-8, atol=0)
+
+
+def test_a_cell_of_no_size_is_repaired():
+    # a hex whose 8 vertices are one point (beside a grid): its energy's gradient is exactly zero there
+    P, H = structured_grid(3)
+    n = len(P)
+    P = np.vstack([P, np.tile([0.5, 0.5, 2.0], (8, 1))])
+    H = np.vstack([H, np.arange(n, n + 8)[None]])
+    assert list(_not_valid(P, H)) == [27]
+    for boundary in ("free", "slide"):
+        r = hs.repair(P, H, boundary=boundary, max_iter=30)
+        assert r.success and _not_valid(r.points, H).size == 0, (boundary, r.message)
+
+
+def test_collapsed_layer_repaired_when_free_and_reported_cell_by_cell_when_its_corners_are_pinned():
+    P, H = _collapsed_layer()
+    assert _not_valid(P, H).size == 16
+    r = hs.repair(P, H, boundary="free", max_iter=30)
+    assert r.success and _not_valid(r.points, H).size == 0
+    # sliding: the two vertices at each collapsed box corner are pinned feature corners at one point, so the 4
+    # corner-column hexes cannot become valid; the rest can. Before, this raised ZeroDivisionError
+    r = hs.repair(P, H, boundary="slide", max_iter=30)
+    left = _not_valid(r.points, H)
+    assert not r.success and list(left) == [1, 13, 49, 61]
+    assert "hexes 1, 13, 49, 61" in r.message and "two pinned vertices at one point" in r.message
+    assert np.isfinite(r.points).all()
+
+
+def test_cli_writes_the_best_mesh_and_exits_1_when_cells_are_left(tmp_path):
+    P, H = _collapsed_layer()
+    src, out = tmp_path / "flat.vtu", tmp_path / "out.vtu"
+    meshio.write(src, meshio.Mesh(P, [("hexahedron", H)]))
+    p = subprocess.run([sys.executable, "-m", "hexsos_plugins", "repair", str(src), "-o", str(out), "--max-iter",
+                        "20"], capture_output=True, text=True, timeout=300)
+    assert p.returncode == 1, p.stderr
+    assert "Traceback" not in p.stderr and "hexes 1, 13, 49, 61" in p.stdout + p.stderr
+    m = meshio.read(out)
+    assert list(_not_valid(m.points, m.cells_dict["hexahedron"])) == [1, 13, 49, 61]
