@@ -11,6 +11,7 @@ import pytest
 
 import hexsos_plugins as hs
 from hexsos_plugins import optimize as op
+from hexsos_plugins.errors import InvalidInputError
 from hexsos_plugins.examples import structured_grid
 
 
@@ -89,3 +90,37 @@ def test_cli_writes_the_best_mesh_and_exits_1_when_cells_are_left(tmp_path):
     assert "Traceback" not in p.stderr and "hexes 1, 13, 49, 61" in p.stdout + p.stderr
     m = meshio.read(out)
     assert list(_not_valid(m.points, m.cells_dict["hexahedron"])) == [1, 13, 49, 61]
+
+
+def _damaged_grid():
+    """A 6x6x6 grid with one hex inverted near one corner (an interior vertex pushed through its neighbour) and
+    valid but distorted hexes near the opposite corner (scaled Jacobian about 0.5), far from it."""
+    P, H = structured_grid(6)
+    idx = lambda i, j, k: (i * 7 + j) * 7 + k  # noqa: E731
+    P[idx(1, 1, 1)] += [0.2, 0.2, 0.2]
+    P[idx(5, 5, 5)] += [0.07, -0.07, 0.05]
+    return P, H
+
+
+def test_local_repair_moves_only_the_bad_cells_and_two_rings_and_the_default_moves_more():
+    P, H = _damaged_grid()
+    bad = hs.check(P, H).status != 1
+    assert bad.any()
+    # the region, computed here: the cells not proven valid and 2 layers of cells sharing a vertex around them
+    cells = bad.copy()
+    for _ in range(2):
+        v = np.zeros(len(P), bool)
+        v[H[cells].ravel()] = True
+        cells = v[H].any(axis=1)
+    region = np.zeros(len(P), bool)
+    region[H[cells].ravel()] = True
+    r = hs.repair(P, H, local=True)
+    moved = np.any(r.points != P, axis=1)
+    assert r.success and _not_valid(r.points, H).size == 0
+    assert moved.any() and not moved[~region].any()
+    assert r.stats["moved_vertices"] == int(moved.sum()) and r.stats["local_region_vertices"] == int(region.sum())
+    # the default also raises the distorted hexes far away
+    d = hs.repair(P, H)
+    assert d.success and np.any(d.points[~region] != P[~region])
+    with pytest.raises(InvalidInputError):
+        hs.repair(P, H, method="paper", local=True)

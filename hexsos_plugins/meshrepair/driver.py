@@ -60,6 +60,16 @@ _KERNEL_METHODS = ("auto", "sos")
 _TAU_MAX = 0.75
 
 
+#: Seconds for stage 2 (the barrier's rounds) and for stage 2b (the vertex steps) when no time limit is given:
+#: past them the minimum creeps (rockarm: 0.518 -> 0.523 over the last five of 80 rounds at 0.4-0.7 s each; a
+#: 34,880-hex mesh took 291 s for 54 rounds), and the vertex steps take what stage 2 leaves in a second or two
+QUALITY_SECONDS = 30.0
+LOCAL_SECONDS = 10.0
+#: Seconds for stage 1 without a time limit: an untangling not done by then does not finish (kitten_with_bifur_3's
+#: barrier went on 456 s with more cells inverted than it started with); the paper's Algorithm 2 takes over
+UNTANGLE_SECONDS = 60.0
+
+
 class _Stopped(Exception):
     pass
 
@@ -255,7 +265,7 @@ def repair(points, hexes, *, cells=None, method: str = "optimize", boundary: str
            max_iter=None, time_limit=None, feature_angle: float = 45.0, rings: int = 2, fallback: bool = True,
            rho: float = DEFAULT_RHO, margin=None, pin_boundary: bool = False, kernel_method: str = "auto",
            relaxation: str = "quad2", progress=None, callback=None, anchor: str = "current", max_steps: int = 50,
-           pinned=None, jobs: int = 1, scheduler=None) -> RepairResult:
+           pinned=None, jobs: int = 1, scheduler=None, local: bool = False) -> RepairResult:
     """Repair a mesh until every cell is proven valid, raising its minimum scaled Jacobian on the way.
 
     Parameters
@@ -293,6 +303,10 @@ def repair(points, hexes, *, cells=None, method: str = "optimize", boundary: str
         Same as ``boundary="fixed"``.
     pinned : array_like of bool (N,), optional, keyword-only
         Further vertices to keep fixed.
+    local : bool, keyword-only
+        ``"optimize"``: only the vertices of the cells not proven valid in the input and of ``rings`` layers of
+        cells around them may move (every stage); the rest of the mesh stays exactly as it is. Default False: the
+        quality stages also raise the low cells elsewhere (the mesh's minimum scaled Jacobian is their target).
     progress : callable(done, total), optional
     callback : callable(entry, points), optional
         After each outer step with its history entry and the current coordinates (read-only); returning True
@@ -359,6 +373,9 @@ def repair(points, hexes, *, cells=None, method: str = "optimize", boundary: str
         if pm.shape != (N,):
             raise InvalidInputError(f"pinned: expected a boolean array of shape ({N},), found {pm.shape}")
         pin |= pm
+    if method == "paper" and local:
+        raise InvalidInputError("local=True restricts the optimizer (method='optimize'); method='paper' moves only "
+                                "the vertices of the hexes it repairs")
     if method == "paper":
         return _repair_paper(P0, H, others, pin, boundary=boundary, rho=rho, margin=margin,
                              max_iter=100 if max_iter is None else int(max_iter), kernel_method=kernel_method,
@@ -372,7 +389,7 @@ def repair(points, hexes, *, cells=None, method: str = "optimize", boundary: str
         return _Optimize(P0, H, others, pin, boundary=boundary, min_sj=min_sj, max_iter=max_iter,
                          time_limit=time_limit, feature_angle=feature_angle, rings=rings, fallback=fallback, rho=rho,
                          margin=margin, relaxation=relaxation, progress=progress, callback=callback, jobs=jobs,
-                         scheduler=scheduler).run()
+                         scheduler=scheduler, local=bool(local)).run()
 
 
 def _other_counts(res):
@@ -472,7 +489,8 @@ def _other_stats(others, o0, o1, hex_status):
 
 class _Optimize:
     def __init__(self, P0, H, others, pin, *, boundary, min_sj, max_iter, time_limit, feature_angle, rings,
-                 fallback, rho, margin, relaxation, progress, callback, jobs, scheduler):
+                 fallback, rho, margin, relaxation, progress, callback, jobs, scheduler, local_steps=True,
+                 local=False):
         self.P0, self.H, self.others, self.pin = P0, H, others, pin
         self.boundary, self.min_sj, self.time_limit = boundary, min_sj, time_limit
         self.max_outer = 60 if max_iter is None else int(max_iter)
@@ -481,9 +499,44 @@ class _Optimize:
         self.rho, self.margin, self.relaxation = rho, margin, relaxation
         self.progress, self.callback = progress, callback
         self.jobs, self.scheduler = jobs, scheduler
+        self.local_steps = local_steps
+        self.local = local
+        self.local_info = {}
         self.history = []
         self.t0 = time.perf_counter()
         self.stopped = False
+
+    def _local(self, V, movable, bm, others, deadline):
+        """Stage 2b (:func:`hexsos_plugins.meshrepair.localopt.local_sweeps`) on the hexes; vertices of other cells stay.
+        Sliding boundary vertices move in their tangent planes, then back onto the input surface as far as every
+        cell stays above the minimum reached."""
+        from . import optimize as opt
+        from .localopt import local_sweeps
+
+        mv = movable.copy()
+        for _, conn in others:
+            mv[conn.ravel()] = False
+        slide = self.boundary == "slide"
+        project = None
+        if slide:
+            N = V.shape[0]
+            sizes = [_cell_size(self.P0, name, conn) for name, conn in self.blocks]
+
+            def project(W, moved):
+                # back onto the input surface, each vertex as far as every cell stays above the minimum reached
+                prob = opt.Problem(W, self.blocks, sizes, np.isin(np.arange(N), moved))
+                m_now = prob.min_sj(W)
+                return opt.project_valid(prob, W, bm.project(W, moved), moved,
+                                         t=m_now * (1 - 1e-9) if m_now > 0 else None)
+
+        t_end = time.perf_counter() + LOCAL_SECONDS
+        W, info = local_sweeps(V, self.H, mv, boundary=bm if slide else None, target=self.min_sj, project=project,
+                               deadline=t_end if deadline is None else min(deadline, t_end))
+        self.local_info = info
+        if not info["steps"]:
+            return V
+        self._step("local", W)
+        return W
 
     def _check(self, V):
         r = check(V, self.H, jobs=self.jobs, scheduler=self.scheduler)
@@ -538,6 +591,9 @@ class _Optimize:
                 pin[bm.corners] = True
         movable = ~pin
         deadline = None if self.time_limit is None else self.t0 + float(self.time_limit)
+        deadline0 = deadline
+        if deadline is None:
+            deadline = time.perf_counter() + UNTANGLE_SECONDS
 
         r0, o0 = self._check(P0)
         sj0 = _all_sj(P0, blocks)
@@ -551,6 +607,15 @@ class _Optimize:
         if self.progress is not None:
             self.progress(0, self.bad0)
 
+        region = None
+        if self.local:
+            # a local fix: the cells not proven valid and `rings` layers around them; every other vertex stays
+            region = _vertices(_dilate([r0.status != 1] + [o_["status"] != 1 for o_ in o0], blocks, N, self.rings),
+                               blocks, N) if len(o0) + 1 == len(blocks) else None
+            if region is None:  # other cells of types the optimizer does not move: hexes only
+                region = _vertices(_dilate([r0.status != 1], [blocks[0]], N, self.rings), [blocks[0]], N)
+            pin |= ~region
+            movable = ~pin
         V = P0.copy()
         stage_s = {}
         info1 = {"success": True, "outer": 0, "iterations": 0}
@@ -576,6 +641,20 @@ class _Optimize:
                 untangled = not any(b.any() for b in bad)
                 if sweeps:
                     self._step("smooth", V)
+            if not untangled and len(blocks) == 1:
+                # vertex by vertex, each move raising the least Bernstein coefficient around it and lowering none:
+                # folds go without making others (the barrier below may fold good cells on its way)
+                from .localopt import local_untangle
+
+                W, linfo = local_untangle(V, H, sizes[0], movable, boundary=bm if slide else None,
+                                          deadline=deadline)
+                bad_w = full.bad_cells(W)
+                # kept when it leaves fewer cells for the barrier (its moves may trade a fold for an inverted corner)
+                if linfo["steps"] and int(bad_w[0].sum()) < int(bad[0].sum()):
+                    info1["local_steps"] = linfo["steps"]
+                    V, bad = W, bad_w
+                    untangled = not bad[0].any()
+                    self._step("untangle (local)", V)
             rings = self.rings
             tries = 0
             while not untangled:
@@ -605,6 +684,9 @@ class _Optimize:
             stage_s["untangle"] = time.perf_counter() - ts
             # stage 2: raise the minimum scaled Jacobian of the cells below a threshold and their neighbours
             ts = time.perf_counter()
+            deadline = deadline1 = deadline0  # the caller's; without one stage 2 has QUALITY_SECONDS
+            if self.time_limit is None:
+                deadline = ts + QUALITY_SECONDS
             if untangled:
                 rounds_left = self.max_rounds
                 sj = cell_scaled_jacobians(V, blocks)
@@ -661,6 +743,13 @@ class _Optimize:
                             t_keep = max(t_keep, self.min_sj)  # a target reached stays reached
                         V = opt.project_valid(prob, V, W, off, t=t_keep if t_keep > 0 else None)
             stage_s["quality"] = time.perf_counter() - ts
+            deadline = deadline1
+            # stage 2b: vertex by vertex, worst first, up from where the barrier and the projection left it
+            if untangled and self.local_steps and (self.min_sj is None or cell_scaled_jacobians(V, blocks)[0].min()
+                                                   < self.min_sj):
+                ts = time.perf_counter()
+                V = self._local(V, movable, bm, others, deadline1)
+                stage_s["local"] = time.perf_counter() - ts
         except _Stopped:
             V = self.best[1]
         # stage 3: the certificate
@@ -697,6 +786,7 @@ class _Optimize:
 
         sj1 = _all_sj(V, blocks)
         disp = V - P0
+        diag = float(np.linalg.norm(P0.max(axis=0) - P0.min(axis=0))) if N else 0.0
         norm = np.sqrt((disp * disp).sum(axis=1))
         movedv = norm > 0
         s1 = summary(sj1)
@@ -721,6 +811,9 @@ class _Optimize:
                 why.append("stopped by the callback")
             elif deadline is not None and time.perf_counter() > deadline:
                 why.append(f"time limit {self.time_limit:g} s reached")
+            elif not untangled and self.time_limit is None and stage_s.get("untangle", 0.0) >= UNTANGLE_SECONDS:
+                why.append(f"the untangling did not finish in its {UNTANGLE_SECONDS:g} s (set --time-limit to give "
+                           "it more)")
             if pinned_by and any(o_["status"].size and (o_["status"] != 1).any() for o_ in o
                                  if o_["name"] not in LINEAR_TYPES):
                 why.append("cells of types the optimizer does not move (quadratic cells) are inverted and their "
@@ -760,11 +853,14 @@ class _Optimize:
             "untangle_iterations": int(info1["iterations"]), "smoothing_sweeps": int(info1.get("smoothing_sweeps", 0)),
             "quality_rounds": int(info2.get("rounds", 0)),
             "quality_iterations": int(info2.get("iterations", 0)), "fallback_used": used_fallback,
+            "local_sweeps": int(self.local_info.get("sweeps", 0)), "local_steps": int(self.local_info.get("steps", 0)),
             "outer_iterations": len(self.history) - 1, "sos_steps": int(sum(h["sos_steps"] for h in self.history)),
             "projection_steps": 0, "sdp_solves": 0,
             "max_displacement": float(norm.max()) if N else 0.0,
             "mean_displacement": float(norm[movedv].mean()) if movedv.any() else 0.0,
             "moved_vertices": int(movedv.sum()), "pinned_vertices": int(pin.sum()),
+            "moved_over_1pct": int((norm > 0.01 * diag).sum()), "local": self.local, "rings": self.rings,
+            "local_region_vertices": int(region.sum()) if region is not None else None,
             "boundary_vertices": int(bm.vertices.size) if bm is not None else int(boundary_vertex_mask(H, N).sum()),
             "feature_edges": int(bm.feature_edges) if bm is not None else None,
             "monotone_invalid": True, "stage_seconds": stage_s, "seconds": time.perf_counter() - self.t0,
