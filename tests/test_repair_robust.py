@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 import hexsos_plugins as hs
-from hexsos_plugins import optimize as op
+from hexsos_plugins.meshrepair import optimize as op
 from hexsos_plugins.errors import InvalidInputError
 from hexsos_plugins.examples import structured_grid
 

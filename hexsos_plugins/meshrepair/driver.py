@@ -520,7 +520,7 @@ class _Optimize:
         project = None
         if slide:
             N = V.shape[0]
-            sizes = [_cell_size(self.P0, name, conn) for name, conn in self.blocks]
+            sizes = [cell_size(self.P0, name, conn) for name, conn in self.blocks]
 
             def project(W, moved):
                 # back onto the input surface, each vertex as far as every cell stays above the minimum reached
