@@ -43,15 +43,15 @@ def test_untangling_energy_is_finite_where_its_direct_formula_divides_by_zero():
     P, H = structured_grid(2)
     P[_idx(1, 1, 1, 2)] = [1.9, 1.9, 1.9]  # the centre vertex far outside: every hex inverted
     sizes = [np.full(len(H), 0.5)]
-    x = None
-    for compiled in (True, False):
-        prob = op.Problem(P, [("hexahedron", H)], sizes, np.ones(len(P), bool), compiled=compiled)
-        x = prob.x0()
-        e, g = prob.untangle_energy(x, eps, [np.ones(len(H), bool)])
-        assert np.isfinite(e) and np.isfinite(g).all() and np.abs(g).max() > 0
-        if compiled:
-            ec, gc = e, g
-    assert e == pytest.approx(ec, rel=1e-10) and np.allclose(g, gc, rtol=1e-8, atol=0)
+    prob = op.Problem(P, [("hexahedron", H)], sizes, np.ones(len(P), bool))
+    x = prob.x0()
+    e, g = prob.untangle_energy(x, eps, [np.ones(len(H), bool)])
+    assert np.isfinite(e) and np.isfinite(g).all() and np.abs(g).max() > 0
+    d = np.random.default_rng(0).standard_normal(x.shape)
+    h = 1e-7
+    fd = (prob.untangle_energy(x + h * d, eps, [np.ones(len(H), bool)])[0]
+          - prob.untangle_energy(x - h * d, eps, [np.ones(len(H), bool)])[0]) / (2 * h)
+    assert g @ d == pytest.approx(fd, rel=1e-4)
 
 
 def test_a_cell_of_no_size_is_repaired():
