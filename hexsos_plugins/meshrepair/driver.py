@@ -584,7 +584,11 @@ class _Optimize:
         if self.boundary != "free":
             from .boundary import boundary_model
 
-            bm = boundary_model(P0, [("hexahedron", H)] + others, feature_angle=self.feature_angle)
+            suspect = np.zeros(N, dtype=bool)  # vertices of inverted cells: their boundary faces are folded
+            for (_, conn), sj in zip(blocks, cell_scaled_jacobians(P0, blocks)):
+                suspect[conn[sj <= 0].ravel()] = True
+            bm = boundary_model(P0, [("hexahedron", H)] + others, feature_angle=self.feature_angle,
+                                suspect=suspect)
             if self.boundary == "fixed":
                 pin[bm.vertices] = True
             else:
