@@ -124,3 +124,27 @@ def test_local_repair_moves_only_the_bad_cells_and_two_rings_and_the_default_mov
     assert d.success and np.any(d.points[~region] != P[~region])
     with pytest.raises(InvalidInputError):
         hs.repair(P, H, method="paper", local=True)
+
+
+def test_folded_boundary_faces_make_no_feature_corners():
+    # a 4x4x4 grid whose top face has one vertex pushed down through the hex below it: that hex is inverted and
+    # its top face folded; the top face is a plane, so none of its vertices is a feature corner
+    from hexsos_plugins.meshrepair.boundary import boundary_model
+    from hexsos_plugins.cells.quality import scaled_jacobian
+
+    P, H = structured_grid(4)
+    v = _idx(2, 2, 4)
+    P[v, 2] -= 0.4
+    inverted = scaled_jacobian(P, H) <= 0
+    assert inverted.any()
+    suspect = np.zeros(len(P), bool)
+    suspect[H[inverted].ravel()] = True
+    top = np.flatnonzero(np.isclose(P[:, 2], 1.0) & (P[:, 0] > 0) & (P[:, 0] < 1) & (P[:, 1] > 0) & (P[:, 1] < 1))
+    top = np.append(top, v)
+    for sus, corners_expected in ((None, True), (suspect, False)):
+        bm = boundary_model(P, [("hexahedron", H)], suspect=sus)
+        kind = dict(zip(bm.vertices.tolist(), bm.kind.tolist()))
+        assert any(kind[int(t)] > 0 for t in top) is corners_expected
+    # and the repair, sliding, certifies it
+    r = hs.repair(P, H)
+    assert r.success and _not_valid(r.points, H).size == 0
