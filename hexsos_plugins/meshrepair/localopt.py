@@ -105,7 +105,7 @@ def local_untangle(V, H, sizes, movable, *, boundary=None, deadline=None, band=0
 
 
 def local_sweeps(V, H, movable, *, boundary=None, deadline=None, band=0.1, tau=0.02, step=0.05, max_sweeps=200,
-                 max_steps=1, patience=5, min_gain=1e-4, target=None, project=None, project_every=4):
+                 max_steps=1, patience=5, min_gain=1e-3, target=None, project=None, project_every=4):
     """Raise the minimum scaled Jacobian of hexes H at V by moves of single vertices (module docstring).
 
     ``movable`` (N,) bool; ``boundary``: a :class:`hexsos_plugins.boundary.BoundaryModel` (surface vertices move
@@ -128,6 +128,8 @@ def local_sweeps(V, H, movable, *, boundary=None, deadline=None, band=0.1, tau=0
     V_last = V.copy()
     for _ in range(max_sweeps):
         m = float(cell_sj.min())
+        if target is not None and m >= target:
+            break
         low = cell_sj < m + band
         verts = np.unique(H[low].ravel())
         verts = verts[can[verts]]
