@@ -5,7 +5,10 @@
 
 1. **untangle**: first Laplacian sweeps over the interior vertices of the bad cells and one ring around them,
    each kept only if it leaves fewer bad cells (interior noise on a good mesh, as in stress tests, is gone after
-   a few); then (:func:`hexsos_plugins.meshrepair.optimize.untangle`) Garanzha et al.'s regularized barrier on the corner
+   a few); then vertex-by-vertex steps that raise the least Bernstein coefficient around each vertex without
+   taking any hex below min(its own, 1e-3) (:func:`hexsos_plugins.meshrepair.localopt.local_untangle`, kept when
+   they leave fewer bad cells); then (:func:`hexsos_plugins.meshrepair.optimize.untangle`) Garanzha et al.'s
+   regularized barrier on the corner
    Jacobians, plus the 27 Bernstein coefficients of det J of every hex that has one <= 0, until every corner
    determinant and every coefficient is positive. Only the cells near the bad ones move (``rings`` layers
    around them; doubled up to the whole mesh if that does not suffice).
@@ -13,7 +16,10 @@
    (Verdict's, :mod:`hexsos_plugins.cells.quality`) and on the hexes' Bernstein coefficients, whose line search
    never leaves the valid set; it raises the minimum scaled Jacobian of the cells below a threshold and their
    neighbours, to ``min_sj`` or as high as it goes (``min_sj=None``: until the minimum stops rising, or the
-   budget; a region stops once it passes the cells left out, which cap the minimum, and then widens).
+   budget; a region stops once it passes the cells left out, which cap the minimum, and then widens). Before it,
+   after every 10 of its rounds and at its end, vertex steps (:func:`hexsos_plugins.meshrepair.localopt.local_sweeps`)
+   raise the minimum vertex by vertex, worst first, never lowering it. ``local=True`` lets only the vertices of
+   the cells not proven valid and ``rings`` layers around them move, in every stage.
 3. **certify**: :func:`hexsos_plugins.check` on every hex (the kernel's proof over the whole element) and a
    check of every other 3-D cell (:func:`check_cells`). A mesh is reported repaired only when every cell is
    proven valid. If not, the paper's Algorithm 2 (:func:`hexsos_plugins.meshrepair.paper.repair_paper`) runs on
@@ -291,7 +297,8 @@ def repair(points, hexes, *, cells=None, method: str = "optimize", boundary: str
         ``"optimize"``: most outer steps per stage (default 60 untangling steps, 80 quality rounds).
         ``"paper"``: most outer iterations of Algorithm 2 (default 100).
     time_limit : float, optional, keyword-only
-        Seconds for stages 1 and 2 (default None: no limit); certification always runs.
+        Seconds for stages 1 and 2 (default None: the untangling has UNTANGLE_SECONDS = 60, stage 2's rounds
+        QUALITY_SECONDS = 30 and the last vertex steps LOCAL_SECONDS = 10); certification always runs.
     feature_angle : float, keyword-only
         ``boundary="slide"``: boundary edges whose faces' normals differ by more than this (degrees) are
         feature edges. Default 45.
