@@ -148,3 +148,29 @@ def test_folded_boundary_faces_make_no_feature_corners():
     # and the repair, sliding, certifies it
     r = hs.repair(P, H)
     assert r.success and _not_valid(r.points, H).size == 0
+
+
+def test_vertex_untangling_removes_a_fold_inside_and_never_takes_a_valid_hex_below_its_floor():
+    from comparison.stress import graded_solid, single_fold, stress
+    from hexsos_plugins.meshrepair import kernels
+    from hexsos_plugins.meshrepair.driver import cell_size
+    from hexsos_plugins.meshrepair.localopt import local_untangle
+
+    # a fold inside a corner-valid hex (every corner positive, a Bernstein coefficient not): removed
+    P, H, _ = single_fold(5)
+    s = cell_size(P, "hexahedron", H)
+    assert _not_valid(P, H).size == 1 and (hs.check(P, H).min_det < 0).sum() == 1
+    V, info = local_untangle(P, H, s, np.ones(len(P), bool))
+    assert info["bad_before"] == 1 and info["bad_after"] == 0 and _not_valid(V, H).size == 0
+    # many inverted hexes: fewer left, every hex whose least coefficient was above the floor (1e-3 of s^3) still
+    # above it, and the least coefficient of the mesh not lower
+    P, H = graded_solid(5)
+    Q = stress(P, H, frac=0.3, amp=0.6, seed=3)
+    s = cell_size(Q, "hexahedron", H)
+    q0 = kernels.bernstein_minima(Q, H, 1 / s ** 3)
+    assert (q0 <= 0).sum() > 3
+    V, info = local_untangle(Q, H, s, np.ones(len(Q), bool))
+    q1 = kernels.bernstein_minima(V, H, 1 / s ** 3)
+    assert info["steps"] > 0 and not np.array_equal(V, Q)
+    assert (q1[q0 > 1e-3] > 1e-3).all() and q1.min() >= q0.min()
+    assert info["bad_after"] == int((q1 <= 0).sum()) < int((q0 <= 0).sum())
