@@ -174,3 +174,16 @@ def test_vertex_untangling_removes_a_fold_inside_and_never_takes_a_valid_hex_bel
     assert info["steps"] > 0 and not np.array_equal(V, Q)
     assert (q1[q0 > 1e-3] > 1e-3).all() and q1.min() >= q0.min()
     assert info["bad_after"] == int((q1 <= 0).sum()) < int((q0 <= 0).sum())
+
+
+def test_cli_local_reports_the_region_and_moved_vertices(tmp_path):
+    P, H = _damaged_grid()
+    src, out = tmp_path / "g.vtu", tmp_path / "o.vtu"
+    meshio.write(src, meshio.Mesh(P, [("hexahedron", H)]))
+    p = subprocess.run([sys.executable, "-m", "hexsos_plugins", "repair", str(src), "-o", str(out), "--local",
+                        "--no-fidelity"], capture_output=True, text=True, timeout=300)
+    assert p.returncode == 0, p.stderr
+    Q = meshio.read(out).points
+    moved = int(np.any(Q != P, axis=1).sum())
+    assert 0 < moved < len(P)
+    assert f"over {moved} moved vertices of {len(P)}" in p.stdout and "local: only the" in p.stdout
