@@ -5,7 +5,10 @@
 
 1. **untangle**: first Laplacian sweeps over the interior vertices of the bad cells and one ring around them,
    each kept only if it leaves fewer bad cells (interior noise on a good mesh, as in stress tests, is gone after
-   a few); then (:func:`hexsos_plugins.meshrepair.optimize.untangle`) Garanzha et al.'s regularized barrier on the corner
+   a few); then vertex-by-vertex steps that raise the least Bernstein coefficient around each vertex without
+   taking any hex below min(its own, 1e-3) (:func:`hexsos_plugins.meshrepair.localopt.local_untangle`, kept when
+   they leave fewer bad cells); then (:func:`hexsos_plugins.meshrepair.optimize.untangle`) Garanzha et al.'s
+   regularized barrier on the corner
    Jacobians, plus the 27 Bernstein coefficients of det J of every hex that has one <= 0, until every corner
    determinant and every coefficient is positive. Only the cells near the bad ones move (``rings`` layers
    around them; doubled up to the whole mesh if that does not suffice).
@@ -13,7 +16,10 @@
    (Verdict's, :mod:`hexsos_plugins.cells.quality`) and on the hexes' Bernstein coefficients, whose line search
    never leaves the valid set; it raises the minimum scaled Jacobian of the cells below a threshold and their
    neighbours, to ``min_sj`` or as high as it goes (``min_sj=None``: until the minimum stops rising, or the
-   budget; a region stops once it passes the cells left out, which cap the minimum, and then widens).
+   budget; a region stops once it passes the cells left out, which cap the minimum, and then widens). Before it,
+   after every 10 of its rounds and at its end, vertex steps (:func:`hexsos_plugins.meshrepair.localopt.local_sweeps`)
+   raise the minimum vertex by vertex, worst first, never lowering it. ``local=True`` lets only the vertices of
+   the cells not proven valid and ``rings`` layers around them move, in every stage.
 3. **certify**: :func:`hexsos_plugins.check` on every hex (the kernel's proof over the whole element) and a
    check of every other 3-D cell (:func:`check_cells`). A mesh is reported repaired only when every cell is
    proven valid. If not, the paper's Algorithm 2 (:func:`hexsos_plugins.meshrepair.paper.repair_paper`) runs on
@@ -41,7 +47,7 @@ import numpy as np
 from ..certify import check, validate_arrays
 from ..cells.elements import ELEMENTS
 from ..errors import InvalidInputError
-from ..cells.quality import LINEAR_TYPES, SAMPLES, summary
+from ..cells.quality import IDEAL, LINEAR_TYPES, SAMPLES, summary
 from .options import BOUNDARY_MODES, DEFAULT_MARGIN, DEFAULT_RHO, METHODS, resolve_boundary
 from .paper import MEMORY, boundary_vertex_mask, hex_edge_length, repair_hex, repair_paper
 from .result import RepairResult, readonly
@@ -58,6 +64,19 @@ _KERNEL_METHODS = ("auto", "sos")
 #: move (measured on a 32,000-hex ring with 2% of its interior vertices moved: with 0.95 every vertex moved, min SJ
 #: 0.95 in 59 s; with 0.75 the damage's neighbourhood only).
 _TAU_MAX = 0.75
+
+
+#: Seconds for stage 2 (the barrier's rounds) and for stage 2b (the vertex steps) when no time limit is given:
+#: past them the minimum creeps (rockarm: 0.518 -> 0.523 over the last five of 80 rounds at 0.4-0.7 s each; a
+#: 34,880-hex mesh took 291 s for 54 rounds), and the vertex steps take what stage 2 leaves in a second or two
+QUALITY_SECONDS = 30.0
+LOCAL_SECONDS = 10.0
+#: Seconds for stage 1 without a time limit: an untangling not done by then does not finish (kitten_with_bifur_3's
+#: barrier went on 456 s with more cells inverted than it started with); the paper's Algorithm 2 takes over
+UNTANGLE_SECONDS = 60.0
+PRE_STEPS = True
+#: stage 2's rounds between two passes of vertex steps
+CHUNK_ROUNDS = 10
 
 
 class _Stopped(Exception):
@@ -219,6 +238,28 @@ def smooth_untangle(V, blocks, movable, bad_cells, max_sweeps=30):
     return V, bad, kept
 
 
+def _spread_collapsed(V, blocks, sizes, movable):
+    """Cells of no size (every vertex at one point) give the energies a zero gradient (a stationary point no
+    descent leaves): their movable vertices start at the ideal cell's shape, a thousandth of the median cell size
+    across, around where they were. Returns (V, number of such cells)."""
+    pos = np.concatenate([s[s > 0] for s in sizes] + [np.zeros(0)])
+    scale = 1e-3 * (float(np.median(pos)) if pos.size else 1.0)
+    count = 0
+    for (name, conn), s in zip(blocks, sizes):
+        rows = np.flatnonzero(~(s > 1e-12 * scale))
+        if rows.size == 0:
+            continue
+        V = V.copy() if count == 0 else V
+        ideal = IDEAL[name] - IDEAL[name].mean(axis=0)
+        ideal = ideal / np.linalg.norm(ideal[_edges_of(name)[:, 1]] - ideal[_edges_of(name)[:, 0]], axis=1).mean()
+        for m in rows:
+            c = conn[m]
+            mv = movable[c]
+            V[c[mv]] = V[c].mean(axis=0) + scale * ideal[mv]
+        count += rows.size
+    return V, count
+
+
 def _vertices(masks, blocks, N):
     v = np.zeros(N, dtype=bool)
     for m, (_, conn) in zip(masks, blocks):
@@ -233,7 +274,7 @@ def repair(points, hexes, *, cells=None, method: str = "optimize", boundary: str
            max_iter=None, time_limit=None, feature_angle: float = 45.0, rings: int = 2, fallback: bool = True,
            rho: float = DEFAULT_RHO, margin=None, pin_boundary: bool = False, kernel_method: str = "auto",
            relaxation: str = "quad2", progress=None, callback=None, anchor: str = "current", max_steps: int = 50,
-           pinned=None, jobs: int = 1, scheduler=None) -> RepairResult:
+           pinned=None, jobs: int = 1, scheduler=None, local: bool = False) -> RepairResult:
     """Repair a mesh until every cell is proven valid, raising its minimum scaled Jacobian on the way.
 
     Parameters
@@ -256,7 +297,8 @@ def repair(points, hexes, *, cells=None, method: str = "optimize", boundary: str
         ``"optimize"``: most outer steps per stage (default 60 untangling steps, 80 quality rounds).
         ``"paper"``: most outer iterations of Algorithm 2 (default 100).
     time_limit : float, optional, keyword-only
-        Seconds for stages 1 and 2 (default None: no limit); certification always runs.
+        Seconds for stages 1 and 2 (default None: the untangling has UNTANGLE_SECONDS = 60, stage 2's rounds
+        QUALITY_SECONDS = 30 and the last vertex steps LOCAL_SECONDS = 10); certification always runs.
     feature_angle : float, keyword-only
         ``boundary="slide"``: boundary edges whose faces' normals differ by more than this (degrees) are
         feature edges. Default 45.
@@ -271,6 +313,10 @@ def repair(points, hexes, *, cells=None, method: str = "optimize", boundary: str
         Same as ``boundary="fixed"``.
     pinned : array_like of bool (N,), optional, keyword-only
         Further vertices to keep fixed.
+    local : bool, keyword-only
+        ``"optimize"``: only the vertices of the cells not proven valid in the input and of ``rings`` layers of
+        cells around them may move (every stage); the rest of the mesh stays exactly as it is. Default False: the
+        quality stages also raise the low cells elsewhere (the mesh's minimum scaled Jacobian is their target).
     progress : callable(done, total), optional
     callback : callable(entry, points), optional
         After each outer step with its history entry and the current coordinates (read-only); returning True
@@ -337,6 +383,9 @@ def repair(points, hexes, *, cells=None, method: str = "optimize", boundary: str
         if pm.shape != (N,):
             raise InvalidInputError(f"pinned: expected a boolean array of shape ({N},), found {pm.shape}")
         pin |= pm
+    if method == "paper" and local:
+        raise InvalidInputError("local=True restricts the optimizer (method='optimize'); method='paper' moves only "
+                                "the vertices of the hexes it repairs")
     if method == "paper":
         return _repair_paper(P0, H, others, pin, boundary=boundary, rho=rho, margin=margin,
                              max_iter=100 if max_iter is None else int(max_iter), kernel_method=kernel_method,
@@ -350,7 +399,7 @@ def repair(points, hexes, *, cells=None, method: str = "optimize", boundary: str
         return _Optimize(P0, H, others, pin, boundary=boundary, min_sj=min_sj, max_iter=max_iter,
                          time_limit=time_limit, feature_angle=feature_angle, rings=rings, fallback=fallback, rho=rho,
                          margin=margin, relaxation=relaxation, progress=progress, callback=callback, jobs=jobs,
-                         scheduler=scheduler).run()
+                         scheduler=scheduler, local=bool(local)).run()
 
 
 def _other_counts(res):
@@ -450,7 +499,8 @@ def _other_stats(others, o0, o1, hex_status):
 
 class _Optimize:
     def __init__(self, P0, H, others, pin, *, boundary, min_sj, max_iter, time_limit, feature_angle, rings,
-                 fallback, rho, margin, relaxation, progress, callback, jobs, scheduler):
+                 fallback, rho, margin, relaxation, progress, callback, jobs, scheduler, local_steps=True,
+                 local=False):
         self.P0, self.H, self.others, self.pin = P0, H, others, pin
         self.boundary, self.min_sj, self.time_limit = boundary, min_sj, time_limit
         self.max_outer = 60 if max_iter is None else int(max_iter)
@@ -459,9 +509,45 @@ class _Optimize:
         self.rho, self.margin, self.relaxation = rho, margin, relaxation
         self.progress, self.callback = progress, callback
         self.jobs, self.scheduler = jobs, scheduler
+        self.local_steps = local_steps
+        self.local = local
+        self.local_info = {}
         self.history = []
         self.t0 = time.perf_counter()
         self.stopped = False
+
+    def _local(self, V, movable, bm, others, deadline, seconds=None):
+        """Stage 2b (:func:`hexsos_plugins.meshrepair.localopt.local_sweeps`) on the hexes; vertices of other cells stay.
+        Sliding boundary vertices move in their tangent planes, then back onto the input surface as far as every
+        cell stays above the minimum reached."""
+        from . import optimize as opt
+        from .localopt import local_sweeps
+
+        mv = movable.copy()
+        for _, conn in others:
+            mv[conn.ravel()] = False
+        slide = self.boundary == "slide"
+        project = None
+        if slide:
+            N = V.shape[0]
+            sizes = [cell_size(self.P0, name, conn) for name, conn in self.blocks]
+
+            def project(W, moved):
+                # back onto the input surface, each vertex as far as every cell stays above the minimum reached
+                prob = opt.Problem(W, self.blocks, sizes, np.isin(np.arange(N), moved))
+                m_now = prob.min_sj(W)
+                return opt.project_valid(prob, W, bm.project(W, moved), moved,
+                                         t=m_now * (1 - 1e-9) if m_now > 0 else None)
+
+        t_end = time.perf_counter() + (LOCAL_SECONDS if seconds is None else seconds)
+        W, info = local_sweeps(V, self.H, mv, boundary=bm if slide else None, target=self.min_sj, project=project,
+                               deadline=t_end if deadline is None else min(deadline, t_end))
+        for k in ("sweeps", "steps"):
+            self.local_info[k] = self.local_info.get(k, 0) + info[k]
+        if not info["steps"]:
+            return V
+        self._step("local", W)
+        return W
 
     def _check(self, V):
         r = check(V, self.H, jobs=self.jobs, scheduler=self.scheduler)
@@ -509,13 +595,20 @@ class _Optimize:
         if self.boundary != "free":
             from .boundary import boundary_model
 
-            bm = boundary_model(P0, [("hexahedron", H)] + others, feature_angle=self.feature_angle)
+            suspect = np.zeros(N, dtype=bool)  # vertices of inverted cells: their boundary faces are folded
+            for (_, conn), sj in zip(blocks, cell_scaled_jacobians(P0, blocks)):
+                suspect[conn[sj <= 0].ravel()] = True
+            bm = boundary_model(P0, [("hexahedron", H)] + others, feature_angle=self.feature_angle,
+                                suspect=suspect)
             if self.boundary == "fixed":
                 pin[bm.vertices] = True
             else:
                 pin[bm.corners] = True
         movable = ~pin
         deadline = None if self.time_limit is None else self.t0 + float(self.time_limit)
+        deadline0 = deadline
+        if deadline is None:
+            deadline = time.perf_counter() + UNTANGLE_SECONDS
 
         r0, o0 = self._check(P0)
         sj0 = _all_sj(P0, blocks)
@@ -529,6 +622,15 @@ class _Optimize:
         if self.progress is not None:
             self.progress(0, self.bad0)
 
+        region = None
+        if self.local:
+            # a local fix: the cells not proven valid and `rings` layers around them; every other vertex stays
+            region = _vertices(_dilate([r0.status != 1] + [o_["status"] != 1 for o_ in o0], blocks, N, self.rings),
+                               blocks, N) if len(o0) + 1 == len(blocks) else None
+            if region is None:  # other cells of types the optimizer does not move: hexes only
+                region = _vertices(_dilate([r0.status != 1], [blocks[0]], N, self.rings), [blocks[0]], N)
+            pin |= ~region
+            movable = ~pin
         V = P0.copy()
         stage_s = {}
         info1 = {"success": True, "outer": 0, "iterations": 0}
@@ -538,6 +640,8 @@ class _Optimize:
         try:
             # stage 1: untangle the bad cells and a few rings around them
             ts = time.perf_counter()
+            V, collapsed = _spread_collapsed(V, blocks, sizes, movable)
+            info1["collapsed_cells"] = collapsed
             full = opt.Problem(V, blocks, sizes, np.ones(N, dtype=bool))
             bad = full.bad_cells(V)
             untangled = not any(b.any() for b in bad)
@@ -552,6 +656,20 @@ class _Optimize:
                 untangled = not any(b.any() for b in bad)
                 if sweeps:
                     self._step("smooth", V)
+            if not untangled and len(blocks) == 1:
+                # vertex by vertex, each move raising the least Bernstein coefficient around it and lowering none:
+                # folds go without making others (the barrier below may fold good cells on its way)
+                from .localopt import local_untangle
+
+                W, linfo = local_untangle(V, H, sizes[0], movable, boundary=bm if slide else None,
+                                          deadline=deadline)
+                bad_w = full.bad_cells(W)
+                # kept when it leaves fewer cells for the barrier (its moves may trade a fold for an inverted corner)
+                if linfo["steps"] and int(bad_w[0].sum()) < int(bad[0].sum()):
+                    info1["local_steps"] = linfo["steps"]
+                    V, bad = W, bad_w
+                    untangled = not bad[0].any()
+                    self._step("untangle (local)", V)
             rings = self.rings
             tries = 0
             while not untangled:
@@ -581,6 +699,13 @@ class _Optimize:
             stage_s["untangle"] = time.perf_counter() - ts
             # stage 2: raise the minimum scaled Jacobian of the cells below a threshold and their neighbours
             ts = time.perf_counter()
+            deadline = deadline1 = deadline0  # the caller's; without one stage 2 has QUALITY_SECONDS
+            if self.time_limit is None:
+                deadline = ts + QUALITY_SECONDS
+            if untangled and self.local_steps and PRE_STEPS:
+                # the vertex steps first: from a just-untangled mesh (min SJ near 0) they raise the minimum in
+                # a second where the barrier's rounds gain 0.002 each (bunny: 0.003 -> 0.09 in 30 s of rounds)
+                V = self._local(V, movable, bm, others, deadline1)
             if untangled:
                 rounds_left = self.max_rounds
                 sj = cell_scaled_jacobians(V, blocks)
@@ -607,8 +732,8 @@ class _Optimize:
                     target = cap if np.isfinite(cap) and cap < 1.0 else None
                     if self.min_sj is not None and (target is None or self.min_sj < target):
                         target = self.min_sj
-                    info = opt.improve(prob, target=target, max_rounds=rounds_left, deadline=deadline,
-                                       project=project, on_step=self._step)
+                    info = opt.improve(prob, target=target, max_rounds=min(rounds_left, CHUNK_ROUNDS),
+                                       deadline=deadline, project=project, on_step=self._step)
                     V = prob.V
                     for k in ("rounds", "iterations"):
                         info2[k] += info.get(k, 0)
@@ -620,6 +745,14 @@ class _Optimize:
                     if ((self.min_sj is None or m_new < self.min_sj) and m_new > tau - 0.05 and tau < _TAU_MAX
                             and m_new > m + 1e-3 and not (deadline is not None and time.perf_counter() > deadline)):
                         m, tau = m_new, min(m_new + 0.2, _TAU_MAX)
+                        continue
+                    if (info.get("rounds", 0) >= CHUNK_ROUNDS and not info.get("reached") and self.local_steps
+                            and not (deadline is not None and time.perf_counter() > deadline)):
+                        # the rounds' budget between vertex steps: below 0.3 each round gains ~0.002 (bunny), the
+                        # steps from there tenfold more in a fraction of a second; then the rounds go on
+                        V = self._local(V, movable, bm, others, deadline, seconds=2.0)
+                        sj = cell_scaled_jacobians(V, blocks)
+                        m = min(float(s.min()) for s in sj if s.size)
                         continue
                     break
                 if slide and np.any(V != P0):
@@ -637,6 +770,13 @@ class _Optimize:
                             t_keep = max(t_keep, self.min_sj)  # a target reached stays reached
                         V = opt.project_valid(prob, V, W, off, t=t_keep if t_keep > 0 else None)
             stage_s["quality"] = time.perf_counter() - ts
+            deadline = deadline1
+            # stage 2b: vertex by vertex, worst first, up from where the barrier and the projection left it
+            if untangled and self.local_steps and (self.min_sj is None or cell_scaled_jacobians(V, blocks)[0].min()
+                                                   < self.min_sj):
+                ts = time.perf_counter()
+                V = self._local(V, movable, bm, others, deadline1)
+                stage_s["local"] = time.perf_counter() - ts
         except _Stopped:
             V = self.best[1]
         # stage 3: the certificate
@@ -673,6 +813,7 @@ class _Optimize:
 
         sj1 = _all_sj(V, blocks)
         disp = V - P0
+        diag = float(np.linalg.norm(P0.max(axis=0) - P0.min(axis=0))) if N else 0.0
         norm = np.sqrt((disp * disp).sum(axis=1))
         movedv = norm > 0
         s1 = summary(sj1)
@@ -697,6 +838,9 @@ class _Optimize:
                 why.append("stopped by the callback")
             elif deadline is not None and time.perf_counter() > deadline:
                 why.append(f"time limit {self.time_limit:g} s reached")
+            elif not untangled and self.time_limit is None and stage_s.get("untangle", 0.0) >= UNTANGLE_SECONDS:
+                why.append(f"the untangling did not finish in its {UNTANGLE_SECONDS:g} s (set --time-limit to give "
+                           "it more)")
             if pinned_by and any(o_["status"].size and (o_["status"] != 1).any() for o_ in o
                                  if o_["name"] not in LINEAR_TYPES):
                 why.append("cells of types the optimizer does not move (quadratic cells) are inverted and their "
@@ -709,6 +853,21 @@ class _Optimize:
                               if self.boundary == "slide" else "fixed boundary or pinned") + ")")
             elif self.boundary == "fixed":
                 why.append("the boundary is fixed (try boundary='slide')")
+            failed = np.flatnonzero((r.status != 1) & ~stuck)
+            if failed.size:
+                X, Pm = V[H[failed]], pin[H[failed]]
+                same = (X[:, :, None, :] == X[:, None, :, :]).all(axis=3) & Pm[:, :, None] & Pm[:, None, :]
+                same &= ~np.eye(8, dtype=bool)[None]
+                k = int(same.any(axis=(1, 2)).sum())
+                if k:
+                    why.append(f"{k} of the hexes not proven valid have two pinned vertices at one point "
+                               + ("(feature corners of the boundary: try boundary='free')" if self.boundary == "slide"
+                                  else "(fixed boundary or pinned)"))
+            if not untangled:
+                nb = sum(int(b.sum()) for b in opt.Problem(V, blocks, sizes, np.ones(N, dtype=bool)).bad_cells(V))
+                if nb:
+                    why.append(f"the untangling ended with {nb} cell{'s' * (nb != 1)} still inverted at a corner or "
+                               f"with a Bernstein coefficient <= 0")
             message = "; ".join(parts) + (" (" + "; ".join(why) + ")" if why else "") + \
                 "; the best mesh seen is returned"
         stats = {
@@ -721,11 +880,14 @@ class _Optimize:
             "untangle_iterations": int(info1["iterations"]), "smoothing_sweeps": int(info1.get("smoothing_sweeps", 0)),
             "quality_rounds": int(info2.get("rounds", 0)),
             "quality_iterations": int(info2.get("iterations", 0)), "fallback_used": used_fallback,
+            "local_sweeps": int(self.local_info.get("sweeps", 0)), "local_steps": int(self.local_info.get("steps", 0)),
             "outer_iterations": len(self.history) - 1, "sos_steps": int(sum(h["sos_steps"] for h in self.history)),
             "projection_steps": 0, "sdp_solves": 0,
             "max_displacement": float(norm.max()) if N else 0.0,
             "mean_displacement": float(norm[movedv].mean()) if movedv.any() else 0.0,
             "moved_vertices": int(movedv.sum()), "pinned_vertices": int(pin.sum()),
+            "moved_over_1pct": int((norm > 0.01 * diag).sum()), "local": self.local, "rings": self.rings,
+            "local_region_vertices": int(region.sum()) if region is not None else None,
             "boundary_vertices": int(bm.vertices.size) if bm is not None else int(boundary_vertex_mask(H, N).sum()),
             "feature_edges": int(bm.feature_edges) if bm is not None else None,
             "monotone_invalid": True, "stage_seconds": stage_s, "seconds": time.perf_counter() - self.t0,

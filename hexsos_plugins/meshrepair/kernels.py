@@ -51,6 +51,18 @@ def _scatter(g, conn, m, G, k, dE):
                     g[v, a] += dE[a, d] * gi
 
 
+@njit(cache=True, inline="always")
+def _chi(D, e2):
+    """chi(D, eps) = (D + sqrt(eps^2 + D^2)) / 2 and d chi / dD, without the cancellation of D + r for D < 0
+    (there chi = eps^2 / (2 (r - D)): with D = -0.9 and eps = 1e-9 the direct sum is exactly 0)."""
+    r = np.sqrt(e2 + D * D)
+    if D >= 0.0:
+        chi = 0.5 * (D + r)
+    else:
+        chi = 0.5 * e2 / (r - D)
+    return chi, chi / r
+
+
 @njit(cache=True)
 def untangle_corners(V, conn, G, s, eps, theta, g, want_grad):
     """Stage 1 over corner samples G (K, n, 3) (ideal-cell corners folded in): returns (energy, min D)."""
@@ -74,9 +86,7 @@ def untangle_corners(V, conn, G, s, eps, theta, g, want_grad):
             D = _cof(J, C)
             if D < dmin:
                 dmin = D
-            r = np.sqrt(e2 + D * D)
-            chi = 0.5 * (D + r)
-            dchi = chi / r
+            chi, dchi = _chi(D, e2)
             c23 = chi ** (-2.0 / 3.0)
             total += (1.0 - theta) * F * c23 + theta * (D * D + 1.0) / chi
             if want_grad:
@@ -208,9 +218,7 @@ def untangle_bernstein(V, conn, rows, GB, T, s, eps, theta_b, g, want_grad):
             bh = b[p] / s3
             if bh < bmin:
                 bmin = bh
-            rr = np.sqrt(e2 + bh * bh)
-            chi = 0.5 * (bh + rr)
-            dchi = chi / rr
+            chi, dchi = _chi(bh, e2)
             total += theta_b * (bh * bh + 1.0) / chi
             db[p] = theta_b * (2.0 * bh / chi - (bh * bh + 1.0) * dchi / (chi * chi)) / s3
         if want_grad:
@@ -272,16 +280,26 @@ def _hex_grid_grad_local(gl, XU, XV, XW, df, GU, GV, GW):
                 gl[_NODE[p, q, 0], a] -= sw
 
 
-@njit(cache=True, parallel=True)
+#: below this many cells stage 2's loop runs in the calling thread. Measured on a 1,728-hex grid: 3.0 ms in one
+#: thread, 59 ms on two OpenMP threads with the machine's two cores busy (the workers wait for a core at every
+#: call); the rounds of a repair make thousands of such calls on regions of a few thousand cells
+PARALLEL_MIN_CELLS = 50_000
+
+
 def barrier_cells(V, conn, G, factor, t, s, beta, hexes, want_grad, ecell, mcell, okc, gcell):
     """Stage 2's terms per cell: ecell (M,) energy, mcell (M,) min SJ, okc (M,) feasible,
     gcell (M, n, 3) the cell's vertex gradient (when ``want_grad``). Returns whether every cell is feasible; when
-    not, the rows are incomplete (the work stops at the first infeasible cell of each thread's chunks)."""
-    M = conn.shape[0]
+    not, the rows are incomplete (the work stops at the first infeasible cell). Threads for
+    :data:`PARALLEL_MIN_CELLS` cells and more."""
+    f = _barrier_parallel if conn.shape[0] >= PARALLEL_MIN_CELLS else _barrier_serial
+    return f(V, conn, G, factor, t, s, beta, hexes, want_grad, ecell, mcell, okc, gcell)
+
+
+@njit(cache=True)
+def _sample_nonzeros(G, n):
+    """The samples' nonzero entries (a hex corner's column has 2 of 8, the centre's 8): nz[k, d] of them, vertex
+    gi[k, d, j] with weight gv[k, d, j]."""
     K = G.shape[0]
-    n = conn.shape[1]
-    # the samples' nonzero entries (a hex corner's column has 2 of 8, the centre's 8): nz[k, d] of them, vertex
-    # gi[k, d, j] with weight gv[k, d, j]
     nz = np.zeros((K, 3), dtype=np.int64)
     gi = np.zeros((K, 3, n), dtype=np.int64)
     gv = np.zeros((K, 3, n))
@@ -292,6 +310,20 @@ def barrier_cells(V, conn, G, factor, t, s, beta, hexes, want_grad, ecell, mcell
                     gi[k, d, nz[k, d]] = i
                     gv[k, d, nz[k, d]] = G[k, i, d]
                     nz[k, d] += 1
+    return nz, gi, gv
+
+
+@njit(cache=True)
+def _barrier_serial(V, conn, G, factor, t, s, beta, hexes, want_grad, ecell, mcell, okc, gcell):
+    nz, gi, gv = _sample_nonzeros(G, conn.shape[1])
+    return _barrier_chunk(V, conn, nz, gi, gv, factor, t, s, beta, hexes, want_grad, ecell, mcell, okc, gcell, 0,
+                          conn.shape[0])
+
+
+@njit(cache=True, parallel=True)
+def _barrier_parallel(V, conn, G, factor, t, s, beta, hexes, want_grad, ecell, mcell, okc, gcell):
+    M = conn.shape[0]
+    nz, gi, gv = _sample_nonzeros(G, conn.shape[1])
     chunk = 256
     stop = np.zeros(1, dtype=np.int64)  # set by the first infeasible cell: the chunks not yet started skip
     for ch in prange((M + chunk - 1) // chunk):
@@ -424,3 +456,310 @@ def scatter_cells(g, conn, gcell):
             v = conn[m, i]
             for a in range(3):
                 g[v, a] += gcell[m, i, a]
+
+
+# --- the vertex steps of :mod:`hexsos_plugins.meshrepair.localopt` ----------------------------------------------
+# Each step moves one vertex to raise the least measure of the hexes around it (their least scaled Jacobian sample,
+# or their least Bernstein coefficient of det J): the direction is the gradient of a soft minimum of those hexes'
+# samples (weights exp(-(x - min) / tau)) restricted to the vertex's freedom (all of space inside, its input
+# tangent plane on the surface, its feature's tangent on a feature curve); the step is halved until the soft
+# minimum falls and no hex around goes below what the sweep allows. Serial, IEEE double precision, no fast-math.
+
+
+@njit(cache=True, inline="always")
+def _cell_eval(V, conn, m, G, factor, ref, tau, out, E, C, XU, XV, XW, b, eu, ev, ew):
+    """Hex m: out[0] its least scaled Jacobian sample (-inf when a Bernstein coefficient of det J is <= 0),
+    out[1] the sum over its samples of exp(-(sj - ref) / tau)."""
+    K = G.shape[0]
+    smin = np.inf
+    soft = 0.0
+    for k in range(K):
+        for a in range(3):
+            for d in range(3):
+                acc = 0.0
+                for i in range(8):
+                    gi = G[k, i, d]
+                    if gi != 0.0:
+                        acc += V[conn[m, i], a] * gi
+                E[a, d] = acc
+        c0 = E[0, 0] * E[0, 0] + E[1, 0] * E[1, 0] + E[2, 0] * E[2, 0]
+        c1 = E[0, 1] * E[0, 1] + E[1, 1] * E[1, 1] + E[2, 1] * E[2, 1]
+        c2 = E[0, 2] * E[0, 2] + E[1, 2] * E[1, 2] + E[2, 2] * E[2, 2]
+        L = np.sqrt(c0) * np.sqrt(c1) * np.sqrt(c2)
+        if not (L > 0.0):
+            out[0] = -np.inf
+            out[1] = np.inf
+            return
+        sj = factor * _cof(E, C) / L
+        if sj < smin:
+            smin = sj
+        soft += np.exp(-(sj - ref) / tau)
+    _hex_grid_s(V, conn, m, XU, XV, XW, b, eu, ev, ew)
+    _to_bernstein(b, True)
+    for p in range(27):
+        if not (b[p] > 0.0):
+            out[0] = -np.inf
+            out[1] = np.inf
+            return
+    out[0] = smin
+    out[1] = soft
+
+
+@njit(cache=True)
+def sweep(V, conn, G, factor, order, ptr, inc, loc, proj, step0, tau, max_steps, cell_sj):
+    """One pass over the vertices ``order``: each moves by up to ``max_steps`` accepted steps (see the module
+    docstring). ``ptr``/``inc``/``loc``: the hexes around each vertex (CSR) and the vertex's node index in each;
+    ``proj`` (N, 3, 3) the projector onto each vertex's freedom; ``step0`` (N,) the first trial length (a fraction
+    of the vertex's edge length); ``cell_sj`` (M,) the hexes' least samples, kept up to date. V is updated in
+    place. Returns the number of accepted steps."""
+    K = G.shape[0]
+    E = np.empty((3, 3))
+    C = np.empty((3, 3))
+    XU = np.empty((3, 3, 3))
+    XV = np.empty((3, 3, 3))
+    XW = np.empty((3, 3, 3))
+    b = np.empty(27)
+    eu = np.empty((2, 2, 3))
+    ev = np.empty((2, 2, 3))
+    ew = np.empty((2, 2, 3))
+    g = np.empty(3)
+    x0 = np.empty(3)
+    c = np.empty(3)
+    ev2 = np.empty(2)
+    accepted = 0
+    for oi in range(order.shape[0]):
+        v = order[oi]
+        lo, hi = ptr[v], ptr[v + 1]
+        if hi == lo:
+            continue
+        for _ in range(max_steps):
+            m0 = np.inf
+            for j in range(lo, hi):
+                if cell_sj[inc[j]] < m0:
+                    m0 = cell_sj[inc[j]]
+            if not (m0 > -np.inf):
+                break
+            # the soft minimum's gradient at v over every sample of the hexes around it
+            g[0] = 0.0
+            g[1] = 0.0
+            g[2] = 0.0
+            for j in range(lo, hi):
+                m = inc[j]
+                li = loc[j]
+                for k in range(K):
+                    for a in range(3):
+                        for d in range(3):
+                            acc = 0.0
+                            for i in range(8):
+                                gi = G[k, i, d]
+                                if gi != 0.0:
+                                    acc += V[conn[m, i], a] * gi
+                            E[a, d] = acc
+                    for d in range(3):
+                        c[d] = E[0, d] * E[0, d] + E[1, d] * E[1, d] + E[2, d] * E[2, d]
+                    L = np.sqrt(c[0]) * np.sqrt(c[1]) * np.sqrt(c[2])
+                    D = _cof(E, C)
+                    sj = factor * D / L
+                    w = np.exp(-(sj - m0) / tau)
+                    if w < 1e-12:
+                        continue
+                    for a in range(3):
+                        acc = 0.0
+                        for d in range(3):
+                            gi = G[k, li, d]
+                            if gi != 0.0:
+                                acc += (factor / L * C[a, d] - sj * E[a, d] / c[d]) * gi
+                        g[a] += w * acc
+            # restricted to the vertex's freedom
+            d0 = proj[v, 0, 0] * g[0] + proj[v, 0, 1] * g[1] + proj[v, 0, 2] * g[2]
+            d1 = proj[v, 1, 0] * g[0] + proj[v, 1, 1] * g[1] + proj[v, 1, 2] * g[2]
+            d2 = proj[v, 2, 0] * g[0] + proj[v, 2, 1] * g[1] + proj[v, 2, 2] * g[2]
+            nrm = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+            if not (nrm > 0.0):
+                break
+            x0[0] = V[v, 0]
+            x0[1] = V[v, 1]
+            x0[2] = V[v, 2]
+            s0 = 0.0
+            for j in range(lo, hi):
+                _cell_eval(V, conn, inc[j], G, factor, m0, tau, ev2, E, C, XU, XV, XW, b, eu, ev, ew)
+                s0 += ev2[1]
+            h = step0[v] / nrm
+            ok = False
+            for _t in range(12):
+                V[v, 0] = x0[0] + h * d0
+                V[v, 1] = x0[1] + h * d1
+                V[v, 2] = x0[2] + h * d2
+                m1 = np.inf
+                s1 = 0.0
+                for j in range(lo, hi):
+                    _cell_eval(V, conn, inc[j], G, factor, m0, tau, ev2, E, C, XU, XV, XW, b, eu, ev, ew)
+                    s1 += ev2[1]
+                    if ev2[0] < m1:
+                        m1 = ev2[0]
+                    if not (m1 >= m0):
+                        break
+                if m1 >= m0 and s1 < s0:
+                    ok = True
+                    break
+                h *= 0.5
+            if not ok:
+                V[v, 0] = x0[0]
+                V[v, 1] = x0[1]
+                V[v, 2] = x0[2]
+                break
+            for j in range(lo, hi):
+                _cell_eval(V, conn, inc[j], G, factor, m0, tau, ev2, E, C, XU, XV, XW, b, eu, ev, ew)
+                cell_sj[inc[j]] = ev2[0]
+            accepted += 1
+    return accepted
+
+
+@njit(cache=True)
+def cell_minima(V, conn, G, factor):
+    """Least scaled Jacobian sample of every hex (-inf where a Bernstein coefficient is <= 0)."""
+    M = conn.shape[0]
+    out = np.empty(M)
+    E = np.empty((3, 3))
+    C = np.empty((3, 3))
+    XU = np.empty((3, 3, 3))
+    XV = np.empty((3, 3, 3))
+    XW = np.empty((3, 3, 3))
+    b = np.empty(27)
+    eu = np.empty((2, 2, 3))
+    ev = np.empty((2, 2, 3))
+    ew = np.empty((2, 2, 3))
+    ev2 = np.empty(2)
+    for m in range(M):
+        _cell_eval(V, conn, m, G, factor, 0.0, 1.0, ev2, E, C, XU, XV, XW, b, eu, ev, ew)
+        out[m] = ev2[0]
+    return out
+
+
+@njit(cache=True, inline="always")
+def _cell_eval_b(V, conn, m, inv3, ref, tau, out, XU, XV, XW, b, eu, ev, ew):
+    """Hex m: out[0] its least Bernstein coefficient of det J in units of s^3, out[1] the sum over the 27 of
+    exp(-(b - ref) / tau). XU, XV, XW, b are left holding the hex's grid (for the gradient)."""
+    _hex_grid_s(V, conn, m, XU, XV, XW, b, eu, ev, ew)
+    _to_bernstein(b, True)
+    bmin = np.inf
+    soft = 0.0
+    for p in range(27):
+        x = b[p] * inv3
+        if x < bmin:
+            bmin = x
+        soft += np.exp(-(x - ref) / tau)
+    out[0] = bmin
+    out[1] = soft
+
+
+@njit(cache=True)
+def bernstein_minima(V, conn, inv3):
+    """Least Bernstein coefficient of det J of every hex, in units of its s^3 (inv3 = 1 / s^3)."""
+    M = conn.shape[0]
+    out = np.empty(M)
+    XU = np.empty((3, 3, 3))
+    XV = np.empty((3, 3, 3))
+    XW = np.empty((3, 3, 3))
+    b = np.empty(27)
+    eu = np.empty((2, 2, 3))
+    ev = np.empty((2, 2, 3))
+    ew = np.empty((2, 2, 3))
+    ev2 = np.empty(2)
+    for m in range(M):
+        _cell_eval_b(V, conn, m, inv3[m], 0.0, 1.0, ev2, XU, XV, XW, b, eu, ev, ew)
+        out[m] = ev2[0]
+    return out
+
+
+@njit(cache=True)
+def sweep_bernstein(V, conn, inv3, order, ptr, inc, loc, proj, step0, tau, max_steps, cell_q, floor):
+    """:func:`sweep` with the least Bernstein coefficient of det J (in units of s^3) as each hex's measure:
+    moves that lower the soft minimum of the coefficients of the hexes around a vertex, lower no hex's least
+    coefficient below min(its own, ``floor``) and so the least of them not at all: a hex whose coefficients are
+    above ``floor`` > 0 keeps them positive (a fold inside untangled without making others)."""
+    XU = np.empty((3, 3, 3))
+    XV = np.empty((3, 3, 3))
+    XW = np.empty((3, 3, 3))
+    GU = np.empty((3, 3, 3))
+    GV = np.empty((3, 3, 3))
+    GW = np.empty((3, 3, 3))
+    b = np.empty(27)
+    db = np.empty(27)
+    eu = np.empty((2, 2, 3))
+    ev = np.empty((2, 2, 3))
+    ew = np.empty((2, 2, 3))
+    gl = np.empty((8, 3))
+    g = np.empty(3)
+    x0 = np.empty(3)
+    ev2 = np.empty(2)
+    accepted = 0
+    for oi in range(order.shape[0]):
+        v = order[oi]
+        lo, hi = ptr[v], ptr[v + 1]
+        if hi == lo:
+            continue
+        for _ in range(max_steps):
+            m0 = np.inf
+            for j in range(lo, hi):
+                if cell_q[inc[j]] < m0:
+                    m0 = cell_q[inc[j]]
+            g[0] = 0.0
+            g[1] = 0.0
+            g[2] = 0.0
+            s0 = 0.0
+            for j in range(lo, hi):
+                m = inc[j]
+                _cell_eval_b(V, conn, m, inv3[m], m0, tau, ev2, XU, XV, XW, b, eu, ev, ew)
+                s0 += ev2[1]
+                for p in range(27):
+                    db[p] = np.exp(-(b[p] * inv3[m] - m0) / tau) * inv3[m] / tau
+                _to_bernstein(db, False)
+                gl[:] = 0.0
+                _hex_grid_grad_local(gl, XU, XV, XW, db, GU, GV, GW)
+                g[0] += gl[loc[j], 0]
+                g[1] += gl[loc[j], 1]
+                g[2] += gl[loc[j], 2]
+            d0 = proj[v, 0, 0] * g[0] + proj[v, 0, 1] * g[1] + proj[v, 0, 2] * g[2]
+            d1 = proj[v, 1, 0] * g[0] + proj[v, 1, 1] * g[1] + proj[v, 1, 2] * g[2]
+            d2 = proj[v, 2, 0] * g[0] + proj[v, 2, 1] * g[1] + proj[v, 2, 2] * g[2]
+            nrm = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+            if not (nrm > 0.0) or not np.isfinite(nrm):
+                break
+            x0[0] = V[v, 0]
+            x0[1] = V[v, 1]
+            x0[2] = V[v, 2]
+            h = step0[v] / nrm
+            ok = False
+            for _t in range(12):
+                V[v, 0] = x0[0] + h * d0
+                V[v, 1] = x0[1] + h * d1
+                V[v, 2] = x0[2] + h * d2
+                m1 = np.inf
+                s1 = 0.0
+                keep = True
+                for j in range(lo, hi):
+                    m = inc[j]
+                    _cell_eval_b(V, conn, m, inv3[m], m0, tau, ev2, XU, XV, XW, b, eu, ev, ew)
+                    s1 += ev2[1]
+                    if ev2[0] < m1:
+                        m1 = ev2[0]
+                    # no hex around goes below min(its own, floor): one above the floor stays above it
+                    if not (m1 >= m0) or not (ev2[0] >= min(cell_q[m], floor)):
+                        keep = False
+                        break
+                if keep and s1 < s0:
+                    ok = True
+                    break
+                h *= 0.5
+            if not ok:
+                V[v, 0] = x0[0]
+                V[v, 1] = x0[1]
+                V[v, 2] = x0[2]
+                break
+            for j in range(lo, hi):
+                m = inc[j]
+                _cell_eval_b(V, conn, m, inv3[m], m0, tau, ev2, XU, XV, XW, b, eu, ev, ew)
+                cell_q[m] = ev2[0]
+            accepted += 1
+    return accepted

@@ -97,9 +97,15 @@ def summary_optimize(res):
         f"min det J         {s['min_det_before']:.6g} -> {s['min_det_after']:.6g} (exact, the kernel's)",
         sj_line(s),
         f"displacement      max {s['max_displacement']:.6g}, mean {s['mean_displacement']:.6g} over "
-        f"{s['moved_vertices']} moved vertices" + (f", {s['pinned_vertices']} pinned" if s["pinned_vertices"] else ""),
+        f"{s['moved_vertices']} moved vertices of {s['points']}"
+        + (f" ({s['moved_over_1pct']} by more than 1% of the bounding-box diagonal)" if "moved_over_1pct" in s else "")
+        + (f", {s['pinned_vertices']} pinned" if s["pinned_vertices"] else "")
+        + (f"; local: only the {s['local_region_vertices']} vertices within {s['rings']} rings of the "
+           f"cells not proven valid could move" if s.get("local") else ""),
         f"stages            untangle {st.get('untangle', 0):.2f} s ({s['untangle_iterations']} iterations), quality "
-        f"{st.get('quality', 0):.2f} s ({s['quality_rounds']} rounds), certify {st.get('certify', 0):.2f} s"
+        f"{st.get('quality', 0):.2f} s ({s['quality_rounds']} rounds)"
+        + (f", vertex steps {st['local']:.2f} s ({s.get('local_steps', 0)} steps)" if "local" in st else "")
+        + f", certify {st.get('certify', 0):.2f} s"
         + (f", fallback (paper) {st['fallback']:.2f} s" if "fallback" in st else ""),
         f"time              {s['seconds']:.3f} s",
         f"result            {'certified: every cell proven valid' if res.success else 'NOT every cell proven valid'}",

@@ -1,0 +1,171 @@
+"""The repair's last stage: raise the minimum scaled Jacobian vertex by vertex (target-driven local steps).
+
+After the global stages (untangling, the barrier over a region), what caps the minimum is a handful of hexes, most
+of them with several vertices on the surface. Here each vertex of the hexes below ``min + band`` moves in turn,
+worst first, to raise the least scaled Jacobian sample of the hexes around it (the compiled steps of
+:mod:`hexsos_plugins.meshrepair.kernels`): inside in any direction, on the surface in its input tangent plane, on a feature
+curve along its tangent, feature corners and pinned vertices not at all. No accepted step lowers the mesh's minimum
+or makes a Bernstein coefficient of a hex non-positive, so the stage ends where it started or higher and valid.
+Sweeps repeat until the minimum rises by less than ``min_gain`` in ``patience`` sweeps, or the deadline.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from ..cells.quality import SAMPLES
+
+__all__ = ["local_sweeps", "local_untangle"]
+
+
+def _incidence(H, N):
+    flat = H.ravel()
+    order = np.argsort(flat, kind="stable")
+    ptr = np.zeros(N + 1, dtype=np.int64)
+    np.add.at(ptr, flat + 1, 1)
+    ptr = np.cumsum(ptr)
+    inc = (order // 8).astype(np.int64)
+    loc = (order % 8).astype(np.int64)
+    return ptr, inc, loc
+
+
+def _edge_length(V, H, N):
+    e = np.array([(0, 1), (1, 2), (2, 3), (3, 0), (4, 5), (5, 6), (6, 7), (7, 4), (0, 4), (1, 5), (2, 6), (3, 7)])
+    a, b = H[:, e[:, 0]].ravel(), H[:, e[:, 1]].ravel()
+    ln = np.linalg.norm(V[a] - V[b], axis=1)
+    s = np.bincount(a, ln, minlength=N) + np.bincount(b, ln, minlength=N)
+    c = np.bincount(a, minlength=N) + np.bincount(b, minlength=N)
+    return s / np.maximum(c, 1)
+
+
+def _setup(V, H, movable, boundary, step):
+    N = V.shape[0]
+    proj = np.zeros((N, 3, 3))
+    proj[movable] = np.eye(3)
+    if boundary is not None:
+        bv = boundary.vertices
+        on = movable[bv]
+        n, t = boundary.normal, boundary.tangent
+        Q = np.where((boundary.kind == 0)[:, None, None], np.eye(3)[None] - n[:, :, None] * n[:, None, :],
+                     np.where((boundary.kind == 1)[:, None, None], t[:, :, None] * t[:, None, :], 0.0))
+        proj[bv[on]] = Q[on]
+    ptr, inc, loc = _incidence(H, N)
+    return proj, ptr, inc, loc, step * _edge_length(V, H, N)
+
+
+def _worst_first(H, q, verts, N):
+    vmin = np.full(N, np.inf)
+    np.minimum.at(vmin, H.ravel(), np.repeat(q, 8))
+    return verts[np.argsort(vmin[verts], kind="stable")]
+
+
+def local_untangle(V, H, sizes, movable, *, boundary=None, deadline=None, band=0.3, tau=0.05, step=0.1,
+                   max_sweeps=100, patience=20, margin=1e-3):
+    """Raise the least Bernstein coefficient of det J (in units of the hex's size s^3) vertex by vertex
+    (:func:`hexsos_plugins.meshrepair.kernels.sweep_bernstein`), worst first, until every hex's is above ``margin``, it
+    stalls, or the deadline. No accepted move takes a hex's least coefficient below min(its own, ``margin``): a
+    hex whose coefficients are above the margin stays valid, so folds are removed without making others. Returns (V',
+    info) with ``sweeps``, ``steps``, ``bad_before``, ``bad_after`` (hexes with a coefficient <= 0)."""
+    from . import kernels as lo
+
+    V = np.array(V, dtype=np.float64, copy=True)
+    H = np.ascontiguousarray(H, dtype=np.int64)
+    N = V.shape[0]
+    inv3 = 1.0 / np.asarray(sizes, dtype=np.float64) ** 3
+    proj, ptr, inc, loc, step0 = _setup(V, H, movable, boundary, step)
+    can = np.abs(proj).sum(axis=(1, 2)) > 0
+    q = lo.bernstein_minima(V, H, inv3)
+    info = {"sweeps": 0, "steps": 0, "bad_before": int((q <= 0).sum())}
+    best, stall = float(q.min()), 0
+    for _ in range(max_sweeps):
+        if q.min() > margin:
+            break
+        low = q < min(float(q.min()) + band, margin)
+        verts = np.unique(H[low].ravel())
+        verts = verts[can[verts]]
+        if verts.size == 0:
+            break
+        verts = _worst_first(H, q, verts, N)
+        info["steps"] += int(lo.sweep_bernstein(V, H, inv3, verts, ptr, inc, loc, proj, step0, tau, 1, q,
+                                                        margin))
+        info["sweeps"] += 1
+        m = float(q.min())
+        if m > best + 1e-6:
+            best, stall = m, 0
+        else:
+            stall += 1
+            if stall >= patience:
+                break
+        if deadline is not None and time.perf_counter() > deadline:
+            break
+    info["bad_after"] = int((q <= 0).sum())
+    return V, info
+
+
+def local_sweeps(V, H, movable, *, boundary=None, deadline=None, band=0.1, tau=0.02, step=0.05, max_sweeps=200,
+                 max_steps=1, patience=5, min_gain=1e-3, target=None, project=None, project_every=4):
+    """Raise the minimum scaled Jacobian of hexes H at V by moves of single vertices (module docstring).
+
+    ``movable`` (N,) bool; ``boundary``: a :class:`hexsos_plugins.boundary.BoundaryModel` (surface vertices move
+    in their tangent plane, curve vertices along their tangent, corners stay) or None (no constraint but
+    ``movable``); ``target``: stop once the minimum reaches it; ``project(V, moved) -> V'``: called every
+    ``project_every`` sweeps and at the end with the boundary vertices moved since the last call (it puts them
+    back on the input surface; it must not lower the minimum). Returns (V', info) with ``sweeps``, ``steps``, ``min_before``, ``min_after``."""
+    from . import kernels as lo
+
+    V = np.array(V, dtype=np.float64, copy=True)
+    H = np.ascontiguousarray(H, dtype=np.int64)
+    N = V.shape[0]
+    G, factor = SAMPLES["hexahedron"]
+    G = np.ascontiguousarray(G)
+    proj, ptr, inc, loc, step0 = _setup(V, H, movable, boundary, step)
+    cell_sj = lo.cell_minima(V, H, G, float(factor))
+    info = {"sweeps": 0, "steps": 0, "min_before": float(cell_sj.min()) if cell_sj.size else np.inf}
+    can = np.abs(proj).sum(axis=(1, 2)) > 0
+    best, stall = info["min_before"], 0
+    V_last = V.copy()
+    for _ in range(max_sweeps):
+        m = float(cell_sj.min())
+        if target is not None and m >= target:
+            break
+        low = cell_sj < m + band
+        verts = np.unique(H[low].ravel())
+        verts = verts[can[verts]]
+        if verts.size == 0:
+            break
+        verts = _worst_first(H, cell_sj, verts, N)  # by the least scaled Jacobian of the hexes around each
+        info["steps"] += int(lo.sweep(V, H, G, float(factor), verts, ptr, inc, loc, proj, step0, tau, max_steps,
+                                      cell_sj))
+        info["sweeps"] += 1
+        if project is not None and info["sweeps"] % project_every == 0:
+            V = _project(project, V, V_last, boundary, H, G, factor, cell_sj)
+            V_last = V.copy()
+        m_new = float(cell_sj.min())
+        if target is not None and m_new >= target:
+            break
+        if m_new > best + min_gain:
+            best, stall = m_new, 0
+        else:
+            stall += 1
+            if stall >= patience:
+                break
+        if deadline is not None and time.perf_counter() > deadline:
+            break
+    if project is not None:
+        V = _project(project, V, V_last, boundary, H, G, factor, cell_sj)
+    info["min_after"] = float(cell_sj.min()) if cell_sj.size else np.inf
+    return V, info
+
+
+def _project(project, V, V_last, boundary, H, G, factor, cell_sj):
+    from . import kernels as lo
+
+    bv = boundary.vertices[boundary.kind < 2]
+    moved = bv[np.any(V[bv] != V_last[bv], axis=1)]
+    if moved.size == 0:
+        return V
+    W = project(V, moved)
+    cell_sj[:] = lo.cell_minima(W, H, G, float(factor))
+    return W
