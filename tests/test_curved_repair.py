@@ -46,7 +46,7 @@ def test_the_barriers_gradient_is_its_derivative(name):
     P = (R[None] + 0.08 * rng.standard_normal((3, R.shape[0], 3))).reshape(-1, 3)
     conn = np.arange(P.shape[0]).reshape(3, -1)
     blocks = [(name, conn)]
-    prob = cv._Problem(P, blocks, cv._cell_scales(P, blocks), [np.arange(3)], np.ones(P.shape[0], bool), None)
+    prob = cv.Problem(P, blocks, cv.cell_scales(P, blocks), [np.arange(3)], np.ones(P.shape[0], bool), None)
     y = 0.01 * rng.standard_normal(prob.ndof)
     _, g, _ = prob.energy(y, 0.1)
     for j in (0, 7, prob.ndof - 1):

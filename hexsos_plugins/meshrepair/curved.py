@@ -39,11 +39,11 @@ import numpy as np
 
 from ..cells.elements import ELEMENTS
 from ..cells.jacobian import factor_indices, space
-from ..errors import InvalidInputError, NoCellsError
+from ..errors import DependencyError, InvalidInputError, NoCellsError
 from .result import RepairResult
 
 __all__ = ["repair_curved", "needs_curved", "curved_blocks", "coefficient_tables", "fast_coefficients", "kernel_coefficients", "curved_scaled_jacobian",
-           "CurvedBoundary", "curved_boundary", "MOVABLE_DOMAINS"]
+           "CurvedBoundary", "curved_boundary", "Problem", "cell_scales", "MOVABLE_DOMAINS"]
 
 #: The reference elements whose cells the curved repair moves (pyramids keep their nodes).
 MOVABLE_DOMAINS = ("tet", "prism", "cube")
@@ -229,8 +229,6 @@ class CurvedBoundary:
     def project(self, V, idx) -> np.ndarray:
         """V with the nodes ``idx`` of kinds 0 and 1 moved to the nearest point of the input's curved faces /
         feature curves (sampled)."""
-        from .boundary import _igl
-
         igl = _igl()
         W = np.array(V, dtype=np.float64, copy=True)
         idx = np.asarray(idx, dtype=np.int64)
@@ -244,14 +242,21 @@ class CurvedBoundary:
 
     def distance(self, V, idx=None) -> np.ndarray:
         """Distance of the boundary nodes (or ``idx``) to the input's curved faces (sampled)."""
-        from .boundary import _igl
-
         rows = self.nodes if idx is None else np.asarray(idx, dtype=np.int64)
         if rows.size == 0:
             return np.zeros(0)
         d2, _, _ = _igl().point_mesh_squared_distance(np.ascontiguousarray(V[rows], dtype=np.float64), self.surf_V,
                                                        self.surf_F)
         return np.sqrt(d2)
+
+
+def _igl():
+    try:
+        import igl
+    except ImportError as exc:
+        raise DependencyError("boundary='slide' projects onto the input's curved faces with libigl: pip install "
+                              "libigl (or repair with boundary='fixed' / 'free')") from exc
+    return igl
 
 
 def curved_boundary(points, cells, *, feature_angle: float = 45.0) -> CurvedBoundary:
@@ -359,7 +364,7 @@ def curved_boundary(points, cells, *, feature_angle: float = 45.0) -> CurvedBoun
 # ------------------------------------------------------------------------------------------------ energy
 
 
-class _Problem:
+class Problem:
     """The energy over the cells ``sel`` (per block ids) with the nodes ``free`` as unknowns, each in its own
     basis (3 columns inside, the tangent plane on a surface, the tangent on a curve)."""
 
@@ -472,7 +477,7 @@ class _Deadline(Exception):
 # ------------------------------------------------------------------------------------------------ driver
 
 
-def _cell_scales(P, blocks):
+def cell_scales(P, blocks):
     """Per block, each cell's mean det J (= the mean of its Bernstein coefficients), at least a quarter of its
     largest coefficient (inverted cells) and never 0."""
     out = []
@@ -631,7 +636,7 @@ def repair_curved(points, cells, *, boundary: str = "slide", min_sj=None, max_it
                     "undecided": int((r0.status == -1).sum()), "other_invalid": 0,
                     "min_det": float(np.min(r0.min_det)), "min_sj": float(np.nanmin(sj0)) if sj0.size else np.nan,
                     "moved_vertices": 0, "seconds": t_check0})
-    scale = _cell_scales(P0, blocks)
+    scale = cell_scales(P0, blocks)
     cells_at = _node_cells(blocks, N)
     V = P0.copy()
     stage_s = {}
@@ -709,7 +714,7 @@ def repair_curved(points, cells, *, boundary: str = "slide", min_sj=None, max_it
                     free, sel = region(comp, ring, corners=corners_too)
                     if not free.any():
                         continue
-                    prob = _Problem(V, blocks, scale, sel, free, bnd if slide else None)
+                    prob = Problem(V, blocks, scale, sel, free, bnd if slide else None)
                     _, rmin = prob.energy(np.zeros(prob.ndof), 1.0, grad=False)
                     best_r = rmin
                     stall = 0
@@ -769,7 +774,7 @@ def repair_curved(points, cells, *, boundary: str = "slide", min_sj=None, max_it
                     free, sel = region(low, rings, corners=not high_order.any())
                     if not free.any():
                         break
-                    prob = _Problem(V, blocks, scale, sel, free, bnd if slide else None)
+                    prob = Problem(V, blocks, scale, sel, free, bnd if slide else None)
                     # the lowest cells weigh most
                     for b_, s_ in enumerate(sel):
                         qs = q[b_][s_]
