@@ -182,3 +182,30 @@ def test_a_mesh_that_cannot_be_repaired_exits_1_with_the_best_mesh_written(tmp_p
     written = meshio.read(out)
     assert hs.check(written.points, [("tetra10", T)]).status[0] == 1
     assert np.array_equal(written.get_cells_type("tetra10"), T)
+
+
+def test_the_paraview_filter_repairs_a_curved_tet_and_says_so():
+    pytest.importorskip("vtkmodules.vtkCommonDataModel")
+    from vtkmodules.util.numpy_support import numpy_to_vtk, vtk_to_numpy
+    from vtkmodules.vtkCommonCore import vtkPoints
+    from vtkmodules.vtkCommonDataModel import vtkUnstructuredGrid
+
+    from vtk_filter import HexSOSRepairFilter
+
+    P, T = _one_bad_tetra10()
+    g = vtkUnstructuredGrid()
+    pts = vtkPoints()
+    pts.SetData(numpy_to_vtk(np.ascontiguousarray(P), deep=1))
+    g.SetPoints(pts)
+    g.InsertNextCell(24, 10, [int(i) for i in T[0]])  # VTK_QUADRATIC_TETRA
+    f = HexSOSRepairFilter()
+    f.SetInputDataObject(0, g)
+    assert f.Update()
+    r = f.GetResult()
+    assert r.success and r.stats["method"] == "curved"
+    out = f.GetOutputDataObject(0)
+    new = vtk_to_numpy(out.GetPoints().GetData()).astype(np.float64)
+    assert hs.check(new, [("tetra10", T)]).status[0] == 1  # the kernel again, on the filter's output
+    assert vtk_to_numpy(out.GetCellData().GetArray("hexsos_status")).tolist() == [1]
+    # the mid-edge node slid along its (straight) feature edge: it stays on the x axis
+    assert np.all(new[4, 1:] == 0.0) and new[4, 0] > 0.1
