@@ -709,9 +709,12 @@ def repair_curved(points, cells, *, boundary: str = "slide", min_sj=None, max_it
             plan = ([(False, 0), (False, rings)] if high_order.any() else []) + [(True, rings), (True, 2 * rings + 1)]
             while any(c.any() for c in core) and tries < len(plan):
                 corners_too, ring = plan[tries]
-                # one problem per group of bad cells sharing nodes: each stops when its own cells are positive
+                # one problem per group of bad cells sharing nodes: each stops when its own cells are positive; a
+                # group with a cell folded at its corners (straight-sided cell inverted) moves its corners at once
+                sj_now = np.split(scaled_jacobian(V, blocks), np.cumsum([c.shape[0] for _, c in blocks])[:-1])
                 for comp in _components(core, blocks, N):
-                    free, sel = region(comp, ring, corners=corners_too)
+                    folded = any((x[m] <= 0).any() for x, m in zip(sj_now, comp))
+                    free, sel = region(comp, ring, corners=corners_too or folded)
                     if not free.any():
                         continue
                     prob = Problem(V, blocks, scale, sel, free, bnd if slide else None)
