@@ -368,12 +368,15 @@ class Problem:
     """The energy over the cells ``sel`` (per block ids) with the nodes ``free`` as unknowns, each in its own
     basis (3 columns inside, the tangent plane on a surface, the tangent on a curve)."""
 
-    def __init__(self, V, blocks, scale, sel, free, bnd):
+    def __init__(self, V, blocks, scale, sel, free, bnd, core=None):
         import scipy.sparse as sps
+
 
         self.V0 = np.array(V, dtype=np.float64)
         self.blocks, self.scale = blocks, scale
         self.sel = [np.ascontiguousarray(s, dtype=np.int64) for s in sel]
+        # ``core`` (per block, cell masks): the cells whose least coefficient is the one reported (positions in sel)
+        self.core = None if core is None else [np.flatnonzero(m[s_]) for m, s_ in zip(core, self.sel)]
         self.weight = [np.ones(s.size) for s in self.sel]
         self.free = np.flatnonzero(free)
         F = self.free.size
@@ -416,13 +419,16 @@ class Problem:
         E = 0.0
         rmin = np.inf
         g = np.zeros((self.N, 3))
-        for (name, conn), s, sel, w in zip(self.blocks, self.scale, self.sel, self.weight):
+        for kb, ((name, conn), s, sel, w) in enumerate(zip(self.blocks, self.scale, self.sel, self.weight)):
             if sel.size == 0:
                 continue
             dN, Tf, sizes = coefficient_tables(name)
             gc = np.empty((sel.size, conn.shape[1], 3)) if grad else np.empty((1, 1, 3))
-            e, rm = barrier(P, conn, sel, dN, Tf, sizes, np.ascontiguousarray(s[sel]), w, float(eps), gc, grad)
+            rc = np.empty(sel.size)
+            e, rm = barrier(P, conn, sel, dN, Tf, sizes, np.ascontiguousarray(s[sel]), w, float(eps), gc, grad, rc)
             E += e
+            if self.core is not None:  # the cells to untangle: the others may keep a negative coefficient
+                rm = float(rc[self.core[kb]].min()) if self.core[kb].size else np.inf
             rmin = min(rmin, rm)
             if grad:
                 idx = conn[sel].ravel()
@@ -434,7 +440,9 @@ class Problem:
 
     def rmin(self, P):
         m = np.inf
-        for (name, conn), s, sel in zip(self.blocks, self.scale, self.sel):
+        for k, ((name, conn), s, sel) in enumerate(zip(self.blocks, self.scale, self.sel)):
+            if self.core is not None:
+                sel = sel[self.core[k]]
             if sel.size:
                 b = fast_coefficients(P, name, conn, sel)
                 m = min(m, float((b.min(axis=1) / s[sel]).min()))
@@ -717,7 +725,7 @@ def repair_curved(points, cells, *, boundary: str = "slide", min_sj=None, max_it
                     free, sel = region(comp, ring, corners=corners_too or folded)
                     if not free.any():
                         continue
-                    prob = Problem(V, blocks, scale, sel, free, bnd if slide else None)
+                    prob = Problem(V, blocks, scale, sel, free, bnd if slide else None, core=comp)
                     _, rmin = prob.energy(np.zeros(prob.ndof), 1.0, grad=False)
                     best_r = rmin
                     stall = 0
@@ -731,6 +739,10 @@ def repair_curved(points, cells, *, boundary: str = "slide", min_sj=None, max_it
                         _debug(f"untangle try {tries} outer {outer}: {free.sum()} free nodes, "
                                f"{sum(x.size for x in sel)} cells, eps {eps:.3g}, min r {rmin:.4g}, {nit} iterations")
                         if deadline is not None and time.perf_counter() > deadline:
+                            break
+                        # a coefficient may stay negative on a cell whose det J is positive: the kernel decides
+                        if all((check(Vn, [(nm, cn[sl])]).status == 1).all()
+                               for (nm, cn), sl in zip(blocks, sel) if sl.size):
                             break
                         # stalled (the most negative coefficient rises by less than 1% of itself twice): widen
                         stall = stall + 1 if rmin < best_r + 0.01 * abs(best_r) else 0

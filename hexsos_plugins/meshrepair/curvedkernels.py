@@ -118,11 +118,11 @@ def _chi(r, eps):
 
 
 @njit(cache=True)
-def barrier(P, conn, cells, dN, Tf, sizes, scale, weight, eps, gcell, want_grad):
+def barrier(P, conn, cells, dN, Tf, sizes, scale, weight, eps, gcell, want_grad, rcell):
     """sum over cells k of weight[k] / nb * sum_i f(b_ki / scale[k]), f(r) = (1 + r^2) / chi(r, eps), chi(r, eps)
     = (r + sqrt(r^2 + eps^2)) / 2 (Garanzha et al.'s regularization: finite everywhere, a barrier at r = 0 as eps
     -> 0, least at r = 1). With ``want_grad`` the gradient of each cell's term with respect to its nodes goes to
-    gcell (K, n, 3). Returns (energy, min r)."""
+    gcell (K, n, 3); each cell's least r goes to rcell (K,). Returns (energy, min r)."""
     K = cells.shape[0]
     nq = dN.shape[0]
     n = conn.shape[1]
@@ -150,6 +150,11 @@ def barrier(P, conn, cells, dN, Tf, sizes, scale, weight, eps, gcell, want_grad)
             e += num / ch
             fp[i] = (2.0 * r * ch - num * dch) / (ch * ch) * wk / s
         E += wk * e
+        rc = np.inf
+        for i in range(nq):
+            if b[i] / s < rc:
+                rc = b[i] / s
+        rcell[k] = rc
         if want_grad:
             _kron_apply(Tf, sizes, fp, gq, w, True)
             for i in range(n):
