@@ -7,8 +7,11 @@ behind them). Every type of the registry (:data:`hexsos_plugins.cells.elements.E
 is a tetrahedron, prism or cube takes part, at any order the registry holds; pyramids keep their nodes and are
 checked.
 
-* **Unknowns**: the nodes of the cells to repair and ``rings`` layers of cells around them -- high-order nodes
-  (edge, face, interior) and corners alike, except the pinned ones (boundary, below).
+* **Unknowns**: per group of cells to repair (cells not proven valid or with a coefficient <= 0, grouped by shared
+  nodes), first the high-order nodes (edge, face, interior) of those cells, then of ``rings`` layers around
+  them, then the corners too (at once for a group with a cell whose corners are folded); never the pinned nodes
+  (boundary, below). Every cell touching a moving node is in the energy; a group is done when its own cells'
+  coefficients are positive or the kernel proves them valid.
 * **Energy**: per cell, det J's Bernstein coefficients ``b`` (det J sampled at the control points of its
   Bernstein space and converted, :func:`coefficient_tables`; the same space the kernel proves on) relative to
   the cell's mean det J in the input, ``r = b / s``; each coefficient pays ``f(r) = (1 + r^2) / chi(r, eps)``,
