@@ -532,7 +532,10 @@ def repair_model(*, repair_method: str = "optimize", boundary: str | None = None
     points, tags = hx.points, hx.node_tags
     cells = [(t, c) for t, c in hx.cells if t != "hexahedron"]
     pinned = hx.skipped_nodes.copy()
-    if hx.hexes.shape[0] == 0:
+    from hexsos_plugins.meshrepair.curved import needs_curved
+
+    # curved elements, or none but tetrahedra / prisms: repair() moves them on det J's Bernstein coefficients
+    if hx.hexes.shape[0] == 0 and not (repair_method == "optimize" and needs_curved(hx.hexes, cells)):
         raise NoHexahedraError(f"the Gmsh model '{hx.model}' holds no 8-node hexahedra to repair; it holds "
                                + ", ".join(f"{k} {t}" for t, k in hx.counts().items()))
     if pin_shared:

@@ -765,10 +765,16 @@ class HexSOSRepairFilter(_HexSOSBase):
 
         P = _points(inp)
         hex_blocks = [(c, ids) for t, c, ids in blocks if t == "hexahedron"]
-        if not hex_blocks:
+        from hexsos_plugins.meshrepair.curved import needs_curved
+
+        # curved cells, or no hexahedra but tetrahedra / wedges: repair() moves them on det J's coefficients
+        curved = self._repair_method == "optimize" and needs_curved(
+            np.concatenate([c for c, _ in hex_blocks]) if hex_blocks else np.zeros((0, 8), dtype=np.int64),
+            [(t, c) for t, c, _ in blocks if t != "hexahedron"])
+        if not hex_blocks and not curved:
             raise ValueError(f"the input has no hexahedra to repair: it has {_cell_type_summary(types)}")
-        H = np.concatenate([c for c, _ in hex_blocks])
-        cell_ids = np.concatenate([ids for _, ids in hex_blocks])
+        H = np.concatenate([c for c, _ in hex_blocks]) if hex_blocks else np.zeros((0, 8), dtype=np.int64)
+        cell_ids = np.concatenate([ids for _, ids in hex_blocks]) if hex_blocks else np.zeros(0, dtype=np.int64)
         is_voxel = types[cell_ids] == VTK_VOXEL
         others = [(t, c) for t, c, _ in blocks if t != "hexahedron"]
         pinned = None
@@ -797,8 +803,13 @@ class HexSOSRepairFilter(_HexSOSBase):
         pts.SetData(_vtk_array("Points", np.asarray(result.points, dtype=np.float64)))
         out.SetPoints(pts)
         out.GetPointData().AddArray(_vtk_array("hexsos_displacement", result.displacement))
-        _add_result_cell_arrays(out, result.check, cell_ids)
-        _add_other_cells(out, result.extra.get("other_cells", []), [ids for t, _, ids in blocks if t != "hexahedron"])
+        if result.stats.get("method") == "curved":  # one certificate over the hexes, then the other blocks
+            _add_result_cell_arrays(out, result.check, np.concatenate(
+                [cell_ids] + [ids for t, _, ids in blocks if t != "hexahedron"]))
+        else:
+            _add_result_cell_arrays(out, result.check, cell_ids)
+            _add_other_cells(out, result.extra.get("other_cells", []),
+                             [ids for t, _, ids in blocks if t != "hexahedron"])
         flag = vtkDataArray.CreateDataArray(6)  # VTK_INT
         flag.SetName("hexsos_repair_success")
         flag.InsertNextTuple1(1 if result.success else 0)

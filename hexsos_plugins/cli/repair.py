@@ -29,6 +29,10 @@ def add_parser(subparsers):
         description="Repair IN: (1) untangle (a regularized barrier on corner Jacobians and on the Bernstein "
                     "coefficients of det J), (2) raise the minimum corner scaled Jacobian while keeping every hex "
                     "valid, (3) prove every hexahedron valid with the kernel and check every other 3-D cell. "
+                    "Meshes with curved cells (order 2 and more) or without hexahedra (tetrahedra, wedges): a "
+                    "barrier on det J's Bernstein coefficients moves their high-order nodes (and corners where "
+                    "needed) until every coefficient is positive, then raises the curved scaled Jacobian (min / max "
+                    "of det J, Bernstein-bounded); every cell is proven valid by the kernel. "
                     "--method paper runs the paper's Algorithms 1 and 2 instead. Writes OUT with everything of the "
                     "input kept, plus point data hexsos_displacement and the kernel's cell arrays after repair. "
                     "Exit 0 when every cell is proven valid (and --min-sj is reached), 1 when not (OUT holds the "
@@ -40,9 +44,9 @@ def add_parser(subparsers):
                    help="optimize (default): untangle, raise the quality, certify; paper: the paper's Algorithms 1 "
                         "and 2 (Table 1). auto / sos: paper, with that kernel method")
     p.add_argument("--boundary", choices=("slide", "fixed", "free"), default=None,
-                   help="slide (default): boundary vertices stay on the input's boundary surface, feature-edge "
-                        "vertices on their features, feature corners fixed; fixed: pinned; free: may move "
-                        "(--method paper: fixed or free, default free)")
+                   help="slide (default): boundary vertices stay on the input's boundary surface (curved meshes: "
+                        "on its curved faces), feature-edge vertices on their features, feature corners fixed; "
+                        "fixed: pinned; free: may move (--method paper: fixed or free, default free)")
     p.add_argument("--min-sj", type=float, default=None, metavar="TARGET",
                    help="stop raising the quality once every cell's scaled Jacobian reaches TARGET (exit 1 if it is "
                         "not reached). Default: as high as it goes (until the minimum rises by less than 1e-3 in 6 "
@@ -124,7 +128,10 @@ def run(args) -> int:
         if not os.access(directory, os.W_OK):
             raise MeshWriteError(f"{target}: cannot write, the directory {directory} is not writable")
     mesh, orient = read_mesh(args.mesh, args.fix_orientation)
-    if mesh.n_hexes == 0:
+    from ..meshrepair.curved import needs_curved
+
+    curved = args.method == "optimize" and needs_curved(mesh.hexes, other_cells(mesh))
+    if mesh.n_hexes == 0 and not curved:
         found = ", ".join(f"{n} {t}" for t, n in mesh.counts_by_type().items())
         raise NoHexahedraError(f"{args.mesh}: repair moves the nodes of hexahedral meshes (linear tetrahedra, prisms "
                                f"and pyramids ride along; quadratic cells keep their nodes): expected 8-node "
@@ -140,6 +147,14 @@ def run(args) -> int:
     best = _Best()
     try:
         with _sigterm_as_interrupt():
+            if curved:  # every block in the file's order, so that the cell arrays line up
+                from ..meshrepair.curved import repair_curved
+
+                result = repair_curved(mesh.points, mesh.cells, boundary=boundary, min_sj=args.min_sj,
+                                       max_iter=args.max_iter, time_limit=args.time_limit,
+                                       feature_angle=args.feature_angle, progress=bar, jobs=args.jobs,
+                                       scheduler=args.scheduler, callback=best)
+                return _finish(args, mesh, orient, result, bar, cells)
             result = repair(mesh.points, mesh.hexes, cells=cells, method=method, boundary=boundary,
                             min_sj=args.min_sj, max_iter=args.max_iter, time_limit=args.time_limit,
                             feature_angle=args.feature_angle, fallback=args.fallback, rho=args.rho,
@@ -223,8 +238,9 @@ def _finish(args, mesh, orient, result, bar, cells) -> int:
 
     bar.close()
 
+    curved = result.stats.get("method") == "curved"
     fidelity, fidelity_note = None, None
-    if args.fidelity:
+    if args.fidelity and not curved:
         from ..meshrepair.fidelity import boundary_fidelity
 
         try:
@@ -233,7 +249,9 @@ def _finish(args, mesh, orient, result, bar, cells) -> int:
             fidelity_note = str(exc)
 
     cell_data = dict(result.check.cell_data())
-    cell_data["hexsos_scaled_jacobian"] = scaled_jacobian(result.points, mesh.hexes)
+    cell_data["hexsos_scaled_jacobian"] = scaled_jacobian(result.points, mesh.cells if curved else mesh.hexes)
+    if curved:
+        cell_data["hexsos_curved_scaled_jacobian"] = result.extra["curved_scaled_jacobian"]
     out_mesh = mesh.with_points(result.points).to_meshio(
         cell_data=cell_data, point_data={"hexsos_displacement": result.displacement})
     warnings = write(out_mesh, args.output)
@@ -246,8 +264,11 @@ def _finish(args, mesh, orient, result, bar, cells) -> int:
     else:
         from ..certify import check
 
-        ok_other = all((o["status"] == 1).all() for o in check_cells(written.points, cells))
-        file_certified = bool((check(written.points, written.hexes).status == 1).all()) and ok_other
+        if curved:
+            file_certified = bool((check(written.points, written.cells).status == 1).all())
+        else:
+            ok_other = all((o["status"] == 1).all() for o in check_cells(written.points, cells))
+            file_certified = bool((check(written.points, written.hexes).status == 1).all()) and ok_other
         warnings.append("the format rounded the coordinates; re-checked as written: "
                         + ("every cell still proven valid" if file_certified else "NOT every cell proven valid"))
 
@@ -256,8 +277,8 @@ def _finish(args, mesh, orient, result, bar, cells) -> int:
     if args.plot:
         plot_history(result.history, args.plot, title=os.path.basename(args.mesh))
     if args.histogram:
-        plot_histogram(scaled_jacobian(mesh.points, [("hexahedron", mesh.hexes)] + cells),
-                       scaled_jacobian(result.points, [("hexahedron", mesh.hexes)] + cells), args.histogram,
+        blocks = mesh.cells if curved else [("hexahedron", mesh.hexes)] + cells
+        plot_histogram(scaled_jacobian(mesh.points, blocks), scaled_jacobian(result.points, blocks), args.histogram,
                        title=os.path.basename(args.mesh))
 
     stats = dict(result.stats)
@@ -283,8 +304,12 @@ def _finish(args, mesh, orient, result, bar, cells) -> int:
         print(json.dumps(stats, default=_jsonable))
     else:
         n_other = sum(c.shape[0] for _, c in cells)
-        print(f"{args.mesh}: {mesh.hexes.shape[0]} hexahedra" + (f", {n_other} other 3-D cells" if n_other else "")
-              + f", {mesh.points.shape[0]} points")
+        if curved:
+            print(f"{args.mesh}: " + ", ".join(f"{n} {t}" for t, n in mesh.counts_by_type().items())
+                  + f", {mesh.points.shape[0]} points")
+        else:
+            print(f"{args.mesh}: {mesh.hexes.shape[0]} hexahedra" + (f", {n_other} other 3-D cells" if n_other else "")
+                  + f", {mesh.points.shape[0]} points")
         if orient == "left-handed":
             print("orientation: left-handed file, hexes flipped (--fix-orientation)")
         print(result.summary())

@@ -4,7 +4,8 @@ Owns: the default method's driver (:mod:`.driver`: untangle, raise the quality, 
 paper's method), its energies and their compiled loops (:mod:`.optimize`, :mod:`.kernels`), the boundary model
 (:mod:`.boundary`: surface, features, sliding), the paper's Algorithms 1 and 2 (:mod:`.paper`), the one result
 type (:mod:`.result`), the options and the one rule for their defaults (:mod:`.options`), the boundary's distance
-to the input (:mod:`.fidelity`) and the BLAS thread cap (:mod:`.blas`).
+to the input (:mod:`.fidelity`), the BLAS thread cap (:mod:`.blas`), and the repair of curved and hex-free
+meshes on det J's Bernstein coefficients (:mod:`.curved`, its compiled loops :mod:`.curvedkernels`).
 
 May import: the certify, kernel and cells wings, :class:`hexsos_plugins.io.mesh` helpers (mesh topology) and
 :mod:`hexsos_plugins.errors`. Never the command line or the doors: they call :func:`repair`.

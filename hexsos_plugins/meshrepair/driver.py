@@ -29,6 +29,10 @@ Boundary: ``"slide"`` (default) keeps boundary vertices on the input's boundary 
 on their feature curves and pins feature corners (:mod:`hexsos_plugins.meshrepair.boundary`); ``"fixed"`` pins every
 boundary vertex; ``"free"`` lets them move.
 
+Curved meshes (cells of order 2 or more) and meshes without trilinear hexahedra (tetrahedra, wedges) go to
+:func:`hexsos_plugins.meshrepair.curved.repair_curved` (a barrier on det J's Bernstein coefficients, the boundary
+on the input's curved faces, the same certificate).
+
 Mixed meshes: cells other than hexahedra are passed as ``cells=[(type, conn), ...]`` (VTK node order). Linear
 tetrahedra, wedges and pyramids are part of both energies (their corner Jacobians), so their shared nodes move
 only by steps that keep their corners positive in stage 2, and they are checked at the end; nodes of other
@@ -373,6 +377,12 @@ def repair(points, hexes, *, cells=None, method: str = "optimize", boundary: str
         raise InvalidInputError(f"time_limit: expected a positive number of seconds, found {time_limit!r}")
     if max_iter is not None and (int(max_iter) != max_iter or max_iter < 0):
         raise InvalidInputError(f"max_iter: expected an integer >= 0, found {max_iter!r}")
+    from .curved import curved_blocks, needs_curved, repair_curved
+
+    if method == "optimize" and needs_curved(hexes, cells):  # curved or hex-free meshes: :mod:`.curved`
+        return repair_curved(points, curved_blocks(hexes, cells), boundary=boundary, min_sj=min_sj, max_iter=max_iter,
+                             time_limit=time_limit, feature_angle=feature_angle, rings=rings, pinned=pinned,
+                             progress=progress, callback=callback, jobs=jobs, scheduler=scheduler)
     P0, H = validate_arrays(points, hexes)
     P0 = np.array(P0, dtype=np.float64, copy=True)
     N = P0.shape[0]

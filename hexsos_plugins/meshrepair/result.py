@@ -42,6 +42,8 @@ class RepairResult:
 
     def summary(self) -> str:
         s = self.stats
+        if s.get("method") == "curved":
+            return summary_curved(self)
         if s.get("method") != "paper":
             return summary_optimize(self)
         lines = [
@@ -107,6 +109,31 @@ def summary_optimize(res):
         + (f", vertex steps {st['local']:.2f} s ({s.get('local_steps', 0)} steps)" if "local" in st else "")
         + f", certify {st.get('certify', 0):.2f} s"
         + (f", fallback (paper) {st['fallback']:.2f} s" if "fallback" in st else ""),
+        f"time              {s['seconds']:.3f} s",
+        f"result            {'certified: every cell proven valid' if res.success else 'NOT every cell proven valid'}",
+        f"                  {res.message}",
+    ]
+    return "\n".join(lines)
+
+
+def summary_curved(res):
+    s = res.stats
+    st = s.get("stage_seconds", {})
+    lines = [
+        f"method            curved (a barrier on det J's Bernstein coefficients, certify); boundary {s['boundary']}",
+        f"cells             {s['cells']} ({', '.join(f'{k} {v}' for k, v in s['cell_types'].items())})",
+        f"invalid before    {s['invalid_before']} (undecided {s['undecided_before']})",
+        f"invalid after     {s['invalid_after']} (undecided {s['undecided_after']})",
+        f"min det J         {s['min_det_before']:.6g} -> {s['min_det_after']:.6g} (the kernel's)",
+        f"curved scaled J.  min {s['curved_sj_before']:.4f} -> {s['curved_sj_after']:.4f} (min / max of det J's "
+        "Bernstein coefficients, proven)",
+        sj_line(s) + " (corners)",
+        f"displacement      max {s['max_displacement']:.6g}, mean {s['mean_displacement']:.6g} over "
+        f"{s['moved_vertices']} moved nodes" + (f", {s['pinned_vertices']} pinned" if s["pinned_vertices"] else ""),
+    ] + ([f"boundary          nodes within {s['boundary_max_distance']:.3g} of the input's curved faces"]
+         if "boundary_max_distance" in s else []) + [
+        f"stages            untangle {st.get('untangle', 0):.2f} s ({s['untangle_iterations']} iterations), quality "
+        f"{st.get('quality', 0):.2f} s ({s['quality_rounds']} rounds), certify {st.get('certify', 0):.2f} s",
         f"time              {s['seconds']:.3f} s",
         f"result            {'certified: every cell proven valid' if res.success else 'NOT every cell proven valid'}",
         f"                  {res.message}",

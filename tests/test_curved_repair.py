@@ -1,0 +1,211 @@
+"""The repair of curved and hex-free meshes (:mod:`hexsos_plugins.meshrepair.curved`, issue 24).
+
+Every verdict is re-established by an independent call: the kernel (``hexsos_plugins.check``) on the file as
+written, Gmsh's own ``minDetJac`` on it, the connectivity read back with meshio, the distance of boundary nodes
+to the exact sphere -- never the repair's own bookkeeping.
+"""
+
+import subprocess
+import sys
+
+import meshio
+import numpy as np
+import pytest
+
+import hexsos_plugins as hs
+from hexsos_plugins.cells.elements import ELEMENTS
+from hexsos_plugins.meshrepair import curved as cv
+
+gmsh = pytest.importorskip("gmsh")
+
+
+def _cli(*args):
+    return subprocess.run([sys.executable, "-m", "hexsos_plugins", "repair", *map(str, args)], capture_output=True,
+                          text=True, timeout=300)
+
+
+@pytest.mark.parametrize("name", ["tetra", "tetra10", "wedge", "wedge15", "wedge18", "hexahedron20", "hexahedron27"])
+def test_the_optimizers_coefficients_are_the_kernels(name):
+    # the barrier works on its own float coefficients: they must be det J's Bernstein coefficients, the ones the
+    # kernel proves on (a wrong sample table, a transposed factor or a missed node would differ by O(1))
+    rng = np.random.default_rng(3)
+    R = ELEMENTS[name].reference_nodes
+    P = (R[None] + 0.1 * rng.standard_normal((20, R.shape[0], 3))).reshape(-1, 3)
+    conn = np.arange(P.shape[0]).reshape(20, -1)
+    b = cv.fast_coefficients(P, name, conn)
+    k = cv.kernel_coefficients(P, name, conn)
+    assert b.shape == k.shape
+    assert np.abs(b - k).max() <= 1e-9 * np.abs(k).max()
+    assert (k.min(axis=1) < 0).any() or np.ptp(k) > 0.01  # the cells are not all the same
+
+
+@pytest.mark.parametrize("name", ["tetra10", "hexahedron27"])
+def test_the_barriers_gradient_is_its_derivative(name):
+    rng = np.random.default_rng(4)
+    R = ELEMENTS[name].reference_nodes
+    P = (R[None] + 0.08 * rng.standard_normal((3, R.shape[0], 3))).reshape(-1, 3)
+    conn = np.arange(P.shape[0]).reshape(3, -1)
+    blocks = [(name, conn)]
+    prob = cv.Problem(P, blocks, cv.cell_scales(P, blocks), [np.arange(3)], np.ones(P.shape[0], bool), None)
+    y = 0.01 * rng.standard_normal(prob.ndof)
+    _, g, _ = prob.energy(y, 0.1)
+    for j in (0, 7, prob.ndof - 1):
+        e = np.zeros(prob.ndof)
+        e[j] = 1e-6
+        fd = (prob.energy(y + e, 0.1, grad=False)[0] - prob.energy(y - e, 0.1, grad=False)[0]) / 2e-6
+        assert g[j] == pytest.approx(fd, rel=1e-5, abs=1e-8)
+
+
+def _shell(path):
+    """Gmsh's own curving of a spherical shell r 0.9-1 (issue 24's input): tetra10, two cells inverted."""
+    gmsh.initialize(["-noenv"], readConfigFiles=False)
+    try:
+        gmsh.option.setNumber("General.Terminal", 0)
+        gmsh.option.setNumber("Mesh.HighOrderOptimize", 0)
+        a = gmsh.model.occ.addSphere(0, 0, 0, 1)
+        b = gmsh.model.occ.addSphere(0, 0, 0, 0.9)
+        gmsh.model.occ.cut([(3, a)], [(3, b)])
+        gmsh.model.occ.synchronize()
+        gmsh.option.setNumber("Mesh.MeshSizeMax", 0.35)
+        gmsh.model.mesh.generate(3)
+        gmsh.model.mesh.setOrder(2)
+        gmsh.model.addPhysicalGroup(3, [t for _, t in gmsh.model.getEntities(3)], 7, name="shell")
+        gmsh.write(str(path))  # the physical volume's elements
+    finally:
+        gmsh.finalize()
+
+
+def _gmsh_min_det(path):
+    gmsh.initialize(["-noenv"], readConfigFiles=False)
+    try:
+        gmsh.option.setNumber("General.Terminal", 0)
+        gmsh.open(str(path))
+        _, tags, _ = gmsh.model.mesh.getElements(3)
+        return np.asarray(gmsh.model.mesh.getElementQualities(np.concatenate(tags), "minDetJac"))
+    finally:
+        gmsh.finalize()
+
+
+def test_gmshs_inverted_curved_shell_is_repaired_certified_on_the_sphere(tmp_path):
+    src, out = tmp_path / "shell.msh", tmp_path / "out.msh"
+    _shell(src)
+    m_in = meshio.read(src)
+    P0 = m_in.points
+    T0 = m_in.get_cells_type("tetra10")
+    assert (_gmsh_min_det(src) <= 0).sum() >= 1  # the input is what Gmsh inverts
+    before = hs.check(P0, [("tetra10", T0)])
+    assert (before.status != 1).sum() >= 1
+
+    r = _cli(src, "-o", out)
+    assert r.returncode == 0, r.stderr + r.stdout
+    m_out = meshio.read(out)
+    # connectivity and the physical group untouched, every cell valid for the kernel and for Gmsh
+    assert np.array_equal(m_out.get_cells_type("tetra10"), T0)
+    assert np.array_equal(m_out.cell_data_dict["gmsh:physical"]["tetra10"],
+                          m_in.cell_data_dict["gmsh:physical"]["tetra10"])
+    assert set(np.unique(m_out.cell_data_dict["gmsh:physical"]["tetra10"])) == {7}
+    assert (hs.check(m_out.points, [("tetra10", T0)]).status == 1).all()
+    assert (_gmsh_min_det(out) > 0).all()
+    moved = np.linalg.norm(m_out.points - P0, axis=1) > 0
+    assert moved.any()
+    # nodes on the outer sphere stay within 1e-3 of the diagonal of it (sliding within the curved faces)
+    on = np.abs(np.linalg.norm(P0, axis=1) - 1.0) < 1e-9
+    dist = np.abs(np.linalg.norm(m_out.points[on], axis=1) - 1.0)
+    assert dist.max() <= 1e-3 * 2 * np.sqrt(3.0)
+
+
+def _tet_grid(n):
+    """A cube [0, n]^3 cut into n^3 cubes of 6 tetrahedra each (Kuhn), positively oriented."""
+    g = np.arange(n + 1)
+    P = np.stack(np.meshgrid(g, g, g, indexing="ij"), -1).reshape(-1, 3).astype(float)
+    idx = lambda i, j, k: (i * (n + 1) + j) * (n + 1) + k  # noqa: E731
+    T = []
+    paths = [(0, 1, 2), (0, 2, 1), (1, 0, 2), (1, 2, 0), (2, 0, 1), (2, 1, 0)]
+    for i in range(n):
+        for j in range(n):
+            for k in range(n):
+                for p in paths:
+                    v = np.array([i, j, k])
+                    verts = [idx(*v)]
+                    for a in p:
+                        v = v.copy()
+                        v[a] += 1
+                        verts.append(idx(*v))
+                    T.append(verts)
+    T = np.array(T)
+    X = P[T]
+    d = np.einsum("ij,ij->i", X[:, 1] - X[:, 0], np.cross(X[:, 2] - X[:, 0], X[:, 3] - X[:, 0]))
+    T[d < 0] = T[d < 0][:, [0, 2, 1, 3]]
+    return P, T
+
+
+def test_a_linear_tet_mesh_with_inverted_tets_is_repaired_and_certified():
+    P, T = _tet_grid(3)
+    P = P.copy()
+    inner = np.flatnonzero(np.all((P > 0) & (P < 3), axis=1))
+    P[inner[0]] += [1.6, 0.3, 0.2]  # across its neighbours: tets inverted
+    before = hs.check(P, [("tetra", T)])
+    assert (before.status == 0).sum() >= 2
+    res = hs.repair(P, np.zeros((0, 8), dtype=np.int64), cells=[("tetra", T)])
+    assert res.stats["method"] == "curved"
+    assert res.success
+    after = hs.check(res.points, [("tetra", T)])  # independent of the result's own certificate
+    assert (after.status == 1).all()
+    # boundary nodes stay on their cube faces
+    for a in range(3):
+        for face in (0.0, 3.0):
+            on = P[:, a] == face
+            assert np.all(res.points[on, a] == face)
+
+
+def _one_bad_tetra10():
+    el = ELEMENTS["tetra10"]
+    P = el.reference_nodes.copy()
+    P[4] = [0.1, 0.0, 0.0]  # the mid-node of edge 0-1 pulled to the corner: det J < 0 at corner 0, > 0 inside
+    return P, np.arange(10)[None]
+
+
+def test_a_mesh_that_cannot_be_repaired_exits_1_with_the_best_mesh_written(tmp_path):
+    P, T = _one_bad_tetra10()
+    assert hs.check(P, [("tetra10", T)]).status[0] == 0
+    src, out = tmp_path / "bad.vtu", tmp_path / "out.vtu"
+    meshio.write(src, meshio.Mesh(P, [("tetra10", T)]))
+    # every node of a lone cell is on the boundary: fixed, nothing may move
+    r = _cli(src, "-o", out, "--boundary", "fixed")
+    assert r.returncode == 1, r.stderr + r.stdout
+    assert "NOT every cell proven valid" in r.stdout
+    written = meshio.read(out)
+    assert np.array_equal(written.points, P)
+    # the same mesh with a free boundary is repaired
+    r = _cli(src, "-o", out, "--boundary", "free")
+    assert r.returncode == 0, r.stderr + r.stdout
+    written = meshio.read(out)
+    assert hs.check(written.points, [("tetra10", T)]).status[0] == 1
+    assert np.array_equal(written.get_cells_type("tetra10"), T)
+
+
+def test_the_paraview_filter_repairs_a_curved_tet_and_says_so():
+    pytest.importorskip("vtkmodules.vtkCommonDataModel")
+    from vtkmodules.util.numpy_support import numpy_to_vtk, vtk_to_numpy
+    from vtkmodules.vtkCommonCore import vtkPoints
+    from vtkmodules.vtkCommonDataModel import vtkUnstructuredGrid
+
+    from vtk_filter import HexSOSRepairFilter
+
+    P, T = _one_bad_tetra10()
+    g = vtkUnstructuredGrid()
+    pts = vtkPoints()
+    pts.SetData(numpy_to_vtk(np.ascontiguousarray(P), deep=1))
+    g.SetPoints(pts)
+    g.InsertNextCell(24, 10, [int(i) for i in T[0]])  # VTK_QUADRATIC_TETRA
+    f = HexSOSRepairFilter()
+    f.SetInputDataObject(0, g)
+    assert f.Update()
+    r = f.GetResult()
+    assert r.success and r.stats["method"] == "curved"
+    out = f.GetOutputDataObject(0)
+    new = vtk_to_numpy(out.GetPoints().GetData()).astype(np.float64)
+    assert hs.check(new, [("tetra10", T)]).status[0] == 1  # the kernel again, on the filter's output
+    assert vtk_to_numpy(out.GetCellData().GetArray("hexsos_status")).tolist() == [1]
+    # the mid-edge node slid along its (straight) feature edge: it stays on the x axis
+    assert np.all(new[4, 1:] == 0.0) and new[4, 0] > 0.1
