@@ -388,19 +388,18 @@ def test_round_trip_keeps_blocks_and_data(tmp_path, ext):
                 assert (other == INT_FILL).all()
 
 
-def test_msh_is_binary_22_and_meshio_alone_cannot_read_its_cell_data(tmp_path):
-    _, _, out, _ = result_mesh()
+def test_msh_is_binary_41_and_meshio_alone_reads_its_cell_data(tmp_path):
+    _, arrays, out, _ = result_mesh()
     path = tmp_path / "r.msh"
     hio.write(out, path)
     head = path.read_bytes()[:40]
-    assert head.startswith(b"$MeshFormat\n2.2 1 8\n")
-    assert meshio_fails(path)  # meshio 5.3.5 splits $ElementData wrongly over several blocks
-    assert read_checked(path).n_hexes == 8
-    # a single-block mesh (no other cell types) is read back by plain meshio too
-    single = tmp_path / "single.msh"
-    hio.write(HexMesh.from_arrays(*grid(2)).to_meshio(cell_data={"x": np.arange(8.0)}), single)
+    assert head.startswith(b"$MeshFormat\n4.1 1 8\n")
     with contextlib.redirect_stdout(io.StringIO()):
-        assert meshio.read(str(single)).cell_data["x"][0].tolist() == list(range(8))
+        m = meshio.read(str(path))  # meshio 5.3.5 alone: several blocks, $ElementData on each
+    assert [len(b.data) for b in m.cells] == [len(b.data) for b in out.cells]
+    for name in arrays:
+        assert [len(a) for a in m.cell_data[name]] == [len(b.data) for b in out.cells]
+    assert read_checked(path).n_hexes == 8
 
 
 def test_vtk_is_legacy_42_ascii(tmp_path):
@@ -454,8 +453,9 @@ def test_gmsh_41_file_round_trip(tmp_path):
     assert {k: v.tolist() for k, v in hm.source.field_data.items()} == {"Body": [7, 3], "Walls": [8, 2]}
     out = tmp_path / "out.msh"
     notes = hio.write(hm.to_meshio(cell_data={"hexsos_min_det": np.ones(n_hex)}), out)
-    assert notes == ["point data gmsh:dim_tags (Gmsh 4 node entities) is not stored in MSH 2.2: dropped"]
+    assert notes == []  # the nodes' entities (gmsh:dim_tags) are kept too
     back = read_checked(out)
+    assert np.array_equal(back.source.point_data["gmsh:dim_tags"], hm.source.point_data["gmsh:dim_tags"])
     assert np.array_equal(back.hexes, hm.hexes) and "hexsos_min_det" in back.source.cell_data
     gmsh.initialize()
     try:

@@ -30,15 +30,17 @@ FORMAT_NAMES = {
 }
 READ_ALIASES = {"msh": "gmsh", "gmsh22": "gmsh", "gmsh4": "gmsh", "vtk42": "vtk", "vtk51": "vtk", "mesh": "medit"}
 WRITE_ALIASES = {
-    "msh": "gmsh22",
-    "gmsh": "gmsh22",
-    "gmsh22": "gmsh22",
+    "msh": "gmsh",
+    "gmsh": "gmsh",
+    "gmsh22": "gmsh",
+    "gmsh4": "gmsh",
+    "gmsh41": "gmsh",
     "vtk": "vtk42",
     "vtk42": "vtk42",
     "vtk51": "vtk42",
     "mesh": "medit",
 }
-WRITE_BY_EXT = {".msh": "gmsh22", ".vtk": "vtk42", ".mesh": "medit", ".meshb": "medit", ".vtu": "vtu"}
+WRITE_BY_EXT = {".msh": "gmsh", ".vtk": "vtk42", ".mesh": "medit", ".meshb": "medit", ".vtu": "vtu"}
 NO_WRITE = {"tetgen": "TetGen writes two files (.node and .ele), which cannot be written atomically"}
 COMMON_EXTS = [".vtu", ".vtk", ".msh", ".mesh", ".meshb", ".xdmf", ".inp", ".med", ".exo"]
 

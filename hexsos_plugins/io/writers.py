@@ -12,12 +12,12 @@ file gets its format's own order: VTK files VTK's (meshio's VTK writers would mi
 are handed the mirror), MSH files Gmsh's (meshio permutes tetra10, wedge15, hexahedron20 and hexahedron27
 itself; wedge18 is permuted here, which meshio's writer does not do). See :mod:`hexsos_plugins.io.meshio_conventions`.
 
-* ``.msh``: Gmsh MSH **2.2, binary**. meshio's ASCII MSH with cell data cannot be read back under NumPy 2;
-  meshio's MSH 4.1 writer needs ``gmsh:dim_tags`` point data, fails on meshes of several cell types
-  without it, keeps one physical tag per block, and with synthesized entity tags wrote a mixed mesh its
-  own reader could not read back (KeyError, measured). MSH 2.2 binary keeps
-  ``gmsh:physical`` / ``gmsh:geometrical`` per element, cell and point data as ``$ElementData`` /
-  ``$NodeData`` and ``[tag, dim]`` field data as ``$PhysicalNames``; Gmsh 4.15 opens it (tested).
+* ``.msh``: Gmsh MSH **4.1, binary**, by :mod:`hexsos_plugins.io.msh41`: meshio 5.3.5's MSH 2.2 reader cannot read
+  ``$ElementData`` over more than one cell block (so its own 2.2 files with results do not open in it), and its
+  4.1 writer needs ``gmsh:dim_tags`` and keeps one physical tag per block. The file keeps every cell in order,
+  ``gmsh:physical`` / ``gmsh:geometrical`` per element (one entity per run of equal tags), ``gmsh:dim_tags``,
+  cell and point data as ``$ElementData`` / ``$NodeData`` and ``[tag, dim]`` field data as ``$PhysicalNames``;
+  meshio 5.3.5 and Gmsh 4.15 open it with every block, array and physical group (tested).
   Data arrays must have 1, 3 or 9 components: 2 -> padded to 3, 4..8 -> padded to 9 (zeros), more ->
   split into ``name_0``, ``name_1``, ... (with a warning). Tags are written as int32.
 * ``.vtk``: legacy VTK **4.2, ASCII**. meshio's default 5.1 cannot be opened by Gmsh, and Gmsh 4.15's
@@ -51,6 +51,7 @@ from ..cells.elements import VOXEL_TO_VTK
 from ..errors import HexsosError, InvalidInputError, MeshWriteError
 from .mesh import Mesh, copy_block, copy_mesh
 from .formats import NO_WRITE, WRITE_ALIASES, WRITE_BY_EXT, ext_formats, few_exts, format_name, writer_formats
+from .msh41 import write_msh41
 from .meshio_conventions import fix_write_order, meshio_dimensions, quiet_meshio, shorten
 from .readers.tokens import Cursor
 
@@ -88,7 +89,7 @@ def write(mesh, path, *, file_format=None) -> list:
     path : str or PathLike
         The target; its extension picks the format unless ``file_format`` is given.
     file_format : str, optional
-        A meshio writer name; ``"gmsh"``/``"gmsh22"`` mean MSH 2.2 binary and ``"vtk"``/``"vtk42"``
+        A meshio writer name; ``"gmsh"``/``"gmsh22"``/``"gmsh41"`` mean MSH 4.1 binary and ``"vtk"``/``"vtk42"``
         legacy VTK 4.2 ASCII (see the module docstring for why).
 
     Returns
@@ -133,7 +134,10 @@ def write(mesh, path, *, file_format=None) -> list:
     log: list = []
     try:
         with quiet_meshio() as log, meshio_dimensions([b.type for b in out.cells]):
-            meshio.write(tmp, out, file_format=fmt, **kwargs)
+            if fmt == "gmsh":
+                write_msh41(tmp, out, **kwargs)
+            else:
+                meshio.write(tmp, out, file_format=fmt, **kwargs)
         for fix in post:
             fix(tmp)
         os.chmod(tmp, _new_file_mode(p))
@@ -183,15 +187,14 @@ def _prepare(mesh: meshio.Mesh, fmt: str, notes: list):
     if voxels:
         notes.append(f"{len(voxels)} voxel block(s) written as hexahedron blocks (VTK node order): "
                      "meshio has no voxel cell type")
-    # Gmsh 4 entity topology (meshio's msh4 reader): meaningless outside MSH 4, which is not written here
+    # Gmsh 4 entity topology (meshio's msh4 reader): the entities are written anew from the cells' tags
     m.cell_sets.pop("gmsh:bounding_entities", None)
     if m.points.dtype.kind != "f" or m.points.dtype.itemsize < 4:
         m.points = m.points.astype(np.float64)
     _sanitize_dtypes(m, notes)
     kwargs, post = {}, []
-    if fmt == "gmsh22":
-        _prepare_gmsh22(m, notes)
-        kwargs["binary"] = True
+    if fmt == "gmsh":
+        kwargs["node_dim_tags"] = _prepare_gmsh(m, notes)
     elif fmt == "vtk42":
         _prepare_vtk42(m, notes, post)
         kwargs["binary"] = False
@@ -252,7 +255,7 @@ def _components(arr: np.ndarray) -> np.ndarray:
     return arr.reshape(len(arr), -1) if arr.ndim > 2 else arr
 
 
-def _prepare_gmsh22(m: meshio.Mesh, notes: list) -> None:
+def _prepare_gmsh(m: meshio.Mesh, notes: list):
     if m.points.dtype != np.float64:
         m.points = m.points.astype(np.float64)
     for tag in ("gmsh:physical", "gmsh:geometrical"):
@@ -271,9 +274,19 @@ def _prepare_gmsh22(m: meshio.Mesh, notes: list) -> None:
             notes.append(f"cell data {tag} holds non-integer values; written as zeros (MSH element tags are int)")
             fixed = [np.zeros(len(b.data), dtype=np.int32) for b in m.cells]
         m.cell_data[tag] = fixed
+    phys = [np.asarray(a) for a in m.cell_data["gmsh:physical"]]
+    if any((a != 0).any() for a in phys) and any((a == 0).any() for a in phys):
+        notes.append("cells without a physical group (gmsh:physical 0) are written in physical group 0: MSH 4 "
+                     "gives physical groups to entities, and meshio reads them only when every entity has one")
+    dim_tags = None
     if "gmsh:dim_tags" in m.point_data:
-        del m.point_data["gmsh:dim_tags"]
-        notes.append("point data gmsh:dim_tags (Gmsh 4 node entities) is not stored in MSH 2.2: dropped")
+        dt = np.asarray(m.point_data.pop("gmsh:dim_tags"))
+        if (dt.shape == (len(m.points), 2) and dt.dtype.kind in "iuf" and np.isfinite(dt).all()
+                and (dt == np.round(dt)).all() and ((dt[:, 0] >= 0) & (dt[:, 0] <= 3)).all()):
+            dim_tags = dt.astype(np.int64)
+        else:
+            notes.append(f"point data gmsh:dim_tags is not a (dim, tag) pair per node (shape {dt.shape}): "
+                         "dropped, every node is written on one entity")
     for store, where in ((m.point_data, "point"), (m.cell_data, "cell")):
         for name in list(store):
             if name in ("gmsh:physical", "gmsh:geometrical", "cell_tags"):
@@ -309,8 +322,9 @@ def _prepare_gmsh22(m: meshio.Mesh, notes: list) -> None:
     m.field_data = keep
     if dropped:
         notes.append("field data that is not a [tag, dim] pair (MSH $PhysicalNames) was dropped: " + ", ".join(dropped))
-    # meshio reads Gmsh physical groups as cell sets too; in MSH 2.2 they live on as gmsh:physical + $PhysicalNames
-    _drop_sets(m, notes, "MSH 2.2", quiet=set(keep))
+    # meshio reads Gmsh physical groups as cell sets too; in the file they live on as gmsh:physical + $PhysicalNames
+    _drop_sets(m, notes, "MSH", quiet=set(keep))
+    return dim_tags
 
 
 def _drop_sets(m: meshio.Mesh, notes: list, fmt: str, quiet=()) -> None:

@@ -1,0 +1,132 @@
+"""What a user's own tools do with what hexsos writes and takes: meshio 5.3.5 and Gmsh open every .msh that
+``convert`` and ``repair`` write (physical groups and result arrays kept); the formats that cannot hold an array
+say so; meshio's own mesh objects are taken as they come.
+"""
+
+from __future__ import annotations
+
+import meshio
+import numpy as np
+import pytest
+
+import hexsos_plugins as hs
+from hexsos_plugins import cli
+
+gmsh = pytest.importorskip("gmsh")
+
+RESULTS = ("hexsos_min_det", "hexsos_lower_bound", "hexsos_argmin", "hexsos_status", "hexsos_corner_min_det")
+
+
+@pytest.fixture(scope="module")
+def gmsh_box(tmp_path_factory):
+    """A Gmsh-written MSH 4.1 box of 4^3 hexes with two physical groups (the volume, two walls of quads) and one
+    interior node pushed through its neighbours (some hexes invalid, for repair to fix)."""
+    path = tmp_path_factory.mktemp("gmsh") / "box.msh"
+    gmsh.initialize()
+    try:
+        gmsh.option.setNumber("General.Terminal", 0)
+        gmsh.model.add("box")
+        gmsh.model.occ.addBox(0, 0, 0, 1, 1, 1)
+        gmsh.model.occ.synchronize()
+        gmsh.model.addPhysicalGroup(3, [1], 7, "Body")
+        gmsh.model.addPhysicalGroup(2, [1, 2], 8, "Walls")
+        for _, c in gmsh.model.getEntities(1):
+            gmsh.model.mesh.setTransfiniteCurve(c, 5)
+        for _, s in gmsh.model.getEntities(2):
+            gmsh.model.mesh.setTransfiniteSurface(s)
+            gmsh.model.mesh.setRecombine(2, s)
+        gmsh.model.mesh.setTransfiniteVolume(1)
+        gmsh.model.mesh.generate(3)
+        tags, xyz, _ = gmsh.model.mesh.getNodes(3, 1)  # interior nodes only
+        xyz = xyz.reshape(-1, 3)
+        k = int(np.argmin(np.abs(xyz - 0.5).sum(axis=1)))
+        gmsh.model.mesh.setNode(int(tags[k]), (xyz[k] + [0.3, 0.0, 0.0]).tolist(), [])
+        gmsh.write(str(path))
+    finally:
+        gmsh.finalize()
+    return path
+
+
+def _gmsh_open(path):
+    """What Gmsh sees in ``path``: hexes, physical groups with names, and the data views with their names."""
+    gmsh.initialize()
+    try:
+        gmsh.option.setNumber("General.Terminal", 0)
+        gmsh.open(str(path))
+        groups = {(d, t): gmsh.model.getPhysicalName(d, t) for d, t in gmsh.model.getPhysicalGroups()}
+        in_groups = {(d, t): sum(len(gmsh.model.mesh.getElements(d, e)[1][0]) if gmsh.model.mesh.getElements(d, e)[1]
+                                 else 0 for e in gmsh.model.getEntitiesForPhysicalGroup(d, t)) for d, t in groups}
+        views = sorted(gmsh.option.getString(f"View[{gmsh.view.getIndex(v)}].Name") for v in gmsh.view.getTags())
+        return {"hexes": len(gmsh.model.mesh.getElementsByType(5)[0]), "groups": groups, "sizes": in_groups,
+                "views": views}
+    finally:
+        gmsh.finalize()
+
+
+def _meshio_sees(path, n_hex):
+    m = meshio.read(str(path))  # meshio 5.3.5's own reader, no hexsos code in between
+    types = [b.type for b in m.cells]
+    assert "hexahedron" in types and "quad" in types
+    hexes = [i for i, t in enumerate(types) if t == "hexahedron"]
+    assert sum(len(m.cells[i].data) for i in hexes) == n_hex
+    for name in RESULTS:
+        assert [len(a) for a in m.cell_data[name]] == [len(b.data) for b in m.cells], name
+    phys = {t: set(np.concatenate([m.cell_data["gmsh:physical"][i] for i, b in enumerate(m.cells) if b.type == t]))
+            for t in set(types)}
+    assert phys == {"hexahedron": {7}, "quad": {8}}
+    assert {k: np.asarray(v).tolist() for k, v in m.field_data.items()} == {"Body": [7, 3], "Walls": [8, 2]}
+    return m
+
+
+def test_convert_writes_msh_that_meshio_and_gmsh_open_with_groups_and_results(gmsh_box, tmp_path, capsys):
+    src = hs.read(str(gmsh_box))
+    ref = hs.check(src.points, src.hexes)
+    assert ref.counts()["invalid"] > 0
+    out = tmp_path / "converted.msh"
+    assert cli.main(["convert", str(gmsh_box), str(out)]) == 0
+    m = _meshio_sees(out, len(src.hexes))
+    on_hexes = np.concatenate([m.cell_data["hexsos_status"][i] for i, b in enumerate(m.cells)
+                               if b.type == "hexahedron"])
+    assert np.array_equal(on_hexes.astype(int), ref.status)
+    seen = _gmsh_open(out)
+    assert seen["hexes"] == len(src.hexes)
+    assert seen["groups"] == {(3, 7): "Body", (2, 8): "Walls"}
+    assert seen["sizes"] == {(3, 7): 64, (2, 8): 32}
+    assert set(RESULTS) <= set(seen["views"])
+    assert "warning" not in capsys.readouterr().err  # nothing dropped
+
+
+def test_repair_writes_msh_that_meshio_and_gmsh_open_with_groups_and_results(gmsh_box, tmp_path, capsys):
+    src = hs.read(str(gmsh_box))
+    out = tmp_path / "repaired.msh"
+    assert cli.main(["repair", str(gmsh_box), "-o", str(out), "--no-fidelity"]) == 0
+    m = _meshio_sees(out, len(src.hexes))
+    assert m.point_data["hexsos_displacement"].shape == (len(src.points), 3)
+    fixed = hs.read(str(out))
+    assert hs.check(fixed.points, fixed.hexes).counts()["valid"] == len(src.hexes)
+    seen = _gmsh_open(out)
+    assert seen["groups"] == {(3, 7): "Body", (2, 8): "Walls"} and seen["sizes"] == {(3, 7): 64, (2, 8): 32}
+    assert set(RESULTS) | {"hexsos_displacement"} <= set(seen["views"])
+
+
+def test_msh_keeps_cells_without_a_group_and_cells_split_within_a_block(tmp_path):
+    """Elements of one block in two physical groups, and a block with no group beside one with a group: every
+    tag comes back per element, in the cells' order, from meshio and from hexsos; the warning says where the
+    ungrouped cells went."""
+    from hexsos_plugins.examples import structured_grid
+
+    P, H = structured_grid(2)
+    quads = np.array([[0, 1, 4, 3], [1, 2, 5, 4]])
+    phys = np.array([1, 1, 2, 2, 1, 1, 2, 2])
+    mesh = meshio.Mesh(P, [("quad", quads), ("hexahedron", H)],
+                       cell_data={"gmsh:physical": [np.zeros(2, int), phys], "x": [np.array([5.0, 6.0]),
+                                                                                  np.arange(8.0)]})
+    path = tmp_path / "split.msh"
+    notes = hs.write(mesh, path)
+    assert len(notes) == 1 and "physical group 0" in notes[0]
+    for m in (meshio.read(str(path)), hs.read(str(path)).source):
+        got_phys = np.concatenate([np.ravel(a) for a in m.cell_data["gmsh:physical"]])
+        got_x = np.concatenate([np.ravel(a) for a in m.cell_data["x"]])
+        assert got_phys.tolist() == [0, 0] + phys.tolist() and got_x.tolist() == [5, 6] + list(range(8))
+        hexes = np.concatenate([b.data for b in m.cells if b.type == "hexahedron"])
+        assert np.array_equal(hexes, H)
