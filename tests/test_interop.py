@@ -130,3 +130,50 @@ def test_msh_keeps_cells_without_a_group_and_cells_split_within_a_block(tmp_path
         assert got_phys.tolist() == [0, 0] + phys.tolist() and got_x.tolist() == [5, 6] + list(range(8))
         hexes = np.concatenate([b.data for b in m.cells if b.type == "hexahedron"])
         assert np.array_equal(hexes, H)
+
+
+# ---------------------------------------------------------------------------------------------- item 3
+@pytest.fixture(scope="module")
+def result_vtu(tmp_path_factory, gmsh_box):
+    path = tmp_path_factory.mktemp("vtu") / "m.vtu"
+    assert cli.main(["convert", str(gmsh_box), str(path)]) == 0
+    return path
+
+
+def test_convert_to_exodus_keeps_the_result_arrays_as_element_variables(result_vtu, tmp_path, capsys):
+    pytest.importorskip("netCDF4")
+    capsys.readouterr()
+    src = meshio.read(str(result_vtu))
+    out = tmp_path / "o.exo"
+    assert cli.main(["convert", str(result_vtu), str(out)]) == 0
+    err = capsys.readouterr().err
+    assert "hexsos_argmin -> hexsos_argminX .. hexsos_argminZ" in err
+    back = meshio.read(str(out))
+    assert [len(b.data) for b in back.cells] == [len(b.data) for b in src.cells]
+    for name in RESULTS + ("hexsos_scaled_jacobian", "gmsh:physical"):
+        want = src.cell_data[name]
+        got = [np.column_stack([back.cell_data[name + c][b] for c in "XYZ"]) for b in range(len(want))] \
+            if name == "hexsos_argmin" else back.cell_data[name]
+        for a, b in zip(want, got):
+            assert np.array_equal(np.asarray(a, dtype=float).reshape(np.shape(b)), b, equal_nan=True), name
+    vtk = pytest.importorskip("vtk")
+    reader = vtk.vtkExodusIIReader()
+    reader.SetFileName(str(out))
+    reader.UpdateInformation()
+    names = {reader.GetElementResultArrayName(i) for i in range(reader.GetNumberOfElementResultArrays())}
+    assert set(RESULTS) <= names  # VTK joins hexsos_argminX/Y/Z back into hexsos_argmin
+
+
+@pytest.mark.parametrize("ext", [".inp", ".bdf"])
+def test_formats_without_arrays_name_what_they_drop(result_vtu, tmp_path, capsys, ext):
+    capsys.readouterr()
+    out = tmp_path / f"o{ext}"
+    assert cli.main(["convert", str(result_vtu), str(out)]) == 0
+    err = capsys.readouterr().err
+    lines = [line for line in err.splitlines() if "does not hold cell data" in line]
+    assert len(lines) == 1 and all(name in lines[0] for name in RESULTS), err
+    notes = hs.write(meshio.read(str(result_vtu)), tmp_path / f"again{ext}")
+    assert any("hexsos_min_det" in n for n in notes)
+    # a mesh with nothing to drop gives no warning (the warning is about the data, not the format)
+    bare = meshio.Mesh(np.eye(4)[:, :3] * 1.0, [("tetra", np.array([[0, 1, 2, 3]]))])
+    assert hs.write(bare, tmp_path / f"bare{ext}") == []

@@ -27,6 +27,8 @@ FORMAT_NAMES = {
     "abaqus": "Abaqus",
     "exodus": "Exodus",
     "xdmf": "XDMF",
+    "nastran": "Nastran",
+    "med": "MED",
 }
 READ_ALIASES = {"msh": "gmsh", "gmsh22": "gmsh", "gmsh4": "gmsh", "vtk42": "vtk", "vtk51": "vtk", "mesh": "medit"}
 WRITE_ALIASES = {

@@ -206,6 +206,10 @@ def _prepare(mesh: meshio.Mesh, fmt: str, notes: list):
                 post.append(lambda tmp, fd=fd: _inject_vtu_field_data(tmp, fd, notes))
     elif fmt == "medit":
         _prepare_medit(m, notes)
+    elif fmt == "exodus":
+        _prepare_exodus(m, notes, post)
+    if fmt not in ("gmsh", "vtk42", "vtu", "medit"):
+        post.append(lambda tmp, m=m, fmt=fmt: _name_what_is_missing(tmp, m, fmt, notes))
     return m, kwargs, post
 
 
@@ -477,3 +481,93 @@ def _prepare_medit(m: meshio.Mesh, notes: list) -> None:
         notes.append(f"Medit .mesh cannot hold field data: dropped {', '.join(map(str, m.field_data))}")
         m.field_data = {}
     _drop_sets(m, notes, "Medit")
+
+
+# ------------------------------------------------------------------------------------------------ Exodus II
+_EXODUS_NAME = 32  # len_string 33: 32 characters and the terminator
+
+
+def _prepare_exodus(m: meshio.Mesh, notes: list, post: list) -> None:
+    """meshio's Exodus writer writes no element variables: take the cell data out (one scalar element variable
+    per component, ``nameX``/``Y``/``Z`` for 3 components, which VTK's Exodus reader joins back into the vector
+    ``name``, ``name_0``..
+    otherwise) and add them to the written file."""
+    variables, split, dropped = [], [], []
+    for name, arrays in m.cell_data.items():
+        arrays = [_components(np.asarray(a)) for a in arrays]
+        if arrays and any(a.dtype.kind not in "biuf" for a in arrays):
+            dropped.append(name)
+            continue
+        k = 1 if not arrays or arrays[0].ndim == 1 else arrays[0].shape[1]
+        if k == 1:
+            variables.append((str(name), [a.reshape(len(a)).astype(np.float64) for a in arrays]))
+            continue
+        suffixes = ("X", "Y", "Z") if k == 3 else tuple(f"_{c}" for c in range(k))
+        for c, suffix in enumerate(suffixes):
+            variables.append((f"{name}{suffix}", [a[:, c].astype(np.float64) for a in arrays]))
+        split.append(f"{name} -> {name}{suffixes[0]} .. {name}{suffixes[-1]}")
+    m.cell_data = {}
+    long = [n for n, _ in variables if len(n) > _EXODUS_NAME]
+    if long:
+        dropped += long
+        variables = [(n, v) for n, v in variables if len(n) <= _EXODUS_NAME]
+    if split:
+        notes.append("Exodus element variables are scalars: cell data with components written as one variable "
+                     "per component: " + ", ".join(split))
+    if dropped:
+        notes.append(f"Exodus cannot hold these cell arrays (not numeric, or names longer than {_EXODUS_NAME} "
+                     f"characters): dropped {', '.join(map(str, dropped))}")
+    if variables:
+        post.insert(0, lambda tmp: _inject_exodus_element_variables(tmp, variables))
+
+
+def _inject_exodus_element_variables(tmp: str, variables: list) -> None:
+    import netCDF4
+
+    with netCDF4.Dataset(tmp, "a") as nc:
+        n_blocks = len(nc.dimensions["num_el_blk"])
+        nc.createDimension("num_elem_var", len(variables))
+        names = nc.createVariable("name_elem_var", "S1", ("num_elem_var", "len_string"))
+        names.set_auto_mask(False)
+        for k, (name, _) in enumerate(variables):
+            raw = np.zeros(len(nc.dimensions["len_string"]), dtype="S1")
+            raw[: len(name)] = [bytes([c]) for c in name.encode()]
+            names[k] = raw
+        table = nc.createVariable("elem_var_tab", "i4", ("num_el_blk", "num_elem_var"))
+        table[:] = np.ones((n_blocks, len(variables)), dtype=np.int32)
+        if len(nc.dimensions["time_step"]) == 0:
+            nc.variables["time_whole"][0] = 0.0
+        for k, (_, per_block) in enumerate(variables):
+            for b in range(n_blocks):
+                var = nc.createVariable(f"vals_elem_var{k + 1}eb{b + 1}", "f8", ("time_step", f"num_el_in_blk{b + 1}"))
+                var[0] = per_block[b]
+
+
+# ------------------------------------------------------------------------------------------ the other formats
+def _name_what_is_missing(tmp: str, written: meshio.Mesh, fmt: str, notes: list) -> None:
+    """For the formats hexsos hands to meshio as they are (Abaqus, Nastran, XDMF, MED, Exodus, ...): read the file
+    back and name every array, field datum and set that is not in it (meshio's writers drop them silently)."""
+    groups = {"point data": list(written.point_data), "cell data": list(written.cell_data),
+              "field data": list(map(str, written.field_data)), "point sets": list(written.point_sets),
+              "cell sets": list(written.cell_sets)}
+    if fmt == "exodus":  # the element variables were taken out before meshio wrote the file; they are checked below
+        groups["cell data"] = []
+    try:
+        with quiet_meshio():
+            back = meshio.read(tmp, file_format=fmt)
+    except BaseException as exc:  # noqa: BLE001 - meshio raises anything, SystemExit included
+        if isinstance(exc, KeyboardInterrupt):
+            raise
+        listed = "; ".join(f"{g}: {', '.join(v)}" for g, v in groups.items() if v)
+        if listed:
+            notes.append(f"{format_name(fmt)} is written by meshio, which cannot read the file back to confirm what it "
+                         f"holds ({shorten(str(exc) or type(exc).__name__)}); these may be missing: {listed}")
+        return
+    have = {"point data": set(back.point_data), "cell data": set(back.cell_data),
+            "field data": set(map(str, back.field_data)), "point sets": set(back.point_sets),
+            "cell sets": set(back.cell_sets)}
+    for group, names in groups.items():
+        missing = [n for n in names if n not in have[group]
+                   and not any(re.fullmatch(re.escape(n) + r"(?:[XYZ]|_\d+)", h) for h in have[group])]
+        if missing:
+            notes.append(f"{format_name(fmt)} does not hold {group}: dropped {', '.join(missing)}")
