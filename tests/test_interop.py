@@ -5,6 +5,8 @@ say so; meshio's own mesh objects are taken as they come.
 
 from __future__ import annotations
 
+import os
+
 import meshio
 import numpy as np
 import pytest
@@ -177,3 +179,47 @@ def test_formats_without_arrays_name_what_they_drop(result_vtu, tmp_path, capsys
     # a mesh with nothing to drop gives no warning (the warning is about the data, not the format)
     bare = meshio.Mesh(np.eye(4)[:, :3] * 1.0, [("tetra", np.array([[0, 1, 2, 3]]))])
     assert hs.write(bare, tmp_path / f"bare{ext}") == []
+
+
+# ---------------------------------------------------------------------------------------------- item 4
+def test_the_formats_extra_is_in_all_and_brings_what_meshio_needs():
+    tomllib = pytest.importorskip("tomllib")  # Python 3.11+
+    from hexsos_plugins.readers._common import _FORMAT_PACKAGES
+
+    with open(os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "pyproject.toml"), "rb") as f:
+        extras = tomllib.load(f)["project"]["optional-dependencies"]
+    assert "formats" in extras["all"][0].split("[")[1]
+    assert {r.split(">")[0] for r in extras["formats"]} == set(_FORMAT_PACKAGES) == {"netCDF4", "h5py"}
+
+
+@pytest.mark.parametrize("ext, package", [(".exo", "netCDF4"), (".xdmf", "h5py"), (".med", "h5py")])
+def test_exodus_xdmf_and_med_read_and_a_missing_package_is_named(result_vtu, tmp_path, ext, package, monkeypatch,
+                                                                capsys):
+    pytest.importorskip(package)
+    src = hs.read(str(result_vtu))
+    path = tmp_path / f"m{ext}"
+    hs.write(src.source, path)
+    back = hs.read(str(path))
+    assert np.array_equal(back.points, src.points) and len(back.hexes) == len(src.hexes)
+    assert cli.main(["check", str(path)]) == 1  # some hexes invalid: read and checked
+    capsys.readouterr()
+
+    import builtins
+    real_import = builtins.__import__
+
+    def without(name, *args, **kwargs):  # the package is not installed
+        if name.split(".")[0] == package:
+            raise ModuleNotFoundError(f"No module named '{package}'", name=package)
+        return real_import(name, *args, **kwargs)
+
+    monkeypatch.setattr(builtins, "__import__", without)
+    from hexsos_plugins.errors import DependencyError
+
+    with pytest.raises(DependencyError, match=f"pip install {package}.*hexsos\\[formats\\]"):
+        hs.read(str(path))
+    with pytest.raises(DependencyError, match=f"needs the Python package {package}"):
+        hs.write(src.source, tmp_path / f"again{ext}")
+    assert not (tmp_path / f"again{ext}").exists()
+    assert cli.main(["check", str(path)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f"pip install {package}" in err[0], err

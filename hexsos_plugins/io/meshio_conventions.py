@@ -31,7 +31,8 @@ import numpy as np
 
 from ..cells.elements import ELEMENTS
 
-__all__ = ["quiet_meshio", "shorten", "DIMS", "meshio_dimensions", "WEDGE_SWAP", "fix_read_order", "fix_write_order"]
+__all__ = ["quiet_meshio", "shorten", "DIMS", "meshio_dimensions", "WEDGE_SWAP", "fix_read_order", "fix_write_order",
+           "FORMAT_PACKAGES", "missing_package"]
 
 
 @contextlib.contextmanager
@@ -113,6 +114,28 @@ def meshio_dimensions(extra=()):
         for t in add:
             table.pop(t, None)
 
+
+
+#: the packages meshio's formats import when they are used (the optional ``formats`` extra of hexsos)
+FORMAT_PACKAGES = {"netCDF4": "netCDF4", "h5py": "h5py"}
+
+
+def missing_package(exc: BaseException, doing: str):
+    """A DependencyError naming what to install when ``exc`` is meshio failing to import a format's package, else
+    None. ``doing``: what needed it ("reading Exodus")."""
+    from ..errors import DependencyError
+
+    seen, e = set(), exc
+    while e is not None and id(e) not in seen:  # the import error may be the cause of what meshio raised
+        seen.add(id(e))
+        name = getattr(e, "name", None) if isinstance(e, ImportError) else None
+        root = (name or "").split(".")[0]
+        if root in FORMAT_PACKAGES:
+            pkg = FORMAT_PACKAGES[root]
+            return DependencyError(f"{doing} needs the Python package {pkg}, which is not installed: "
+                                   f"pip install {pkg} (or pip install \"hexsos[formats]\", which [all] includes)")
+        e = e.__cause__ or e.__context__
+    return None
 
 
 WEDGE_SWAP = np.array([0, 2, 1, 3, 5, 4])

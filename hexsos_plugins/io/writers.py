@@ -52,7 +52,7 @@ from ..errors import HexsosError, InvalidInputError, MeshWriteError
 from .mesh import Mesh, copy_block, copy_mesh
 from .formats import NO_WRITE, WRITE_ALIASES, WRITE_BY_EXT, ext_formats, few_exts, format_name, writer_formats
 from .msh41 import write_msh41
-from .meshio_conventions import fix_write_order, meshio_dimensions, quiet_meshio, shorten
+from .meshio_conventions import fix_write_order, meshio_dimensions, missing_package, quiet_meshio, shorten
 from .readers.tokens import Cursor
 
 __all__ = ["write"]
@@ -147,6 +147,9 @@ def write(mesh, path, *, file_format=None) -> list:
             os.remove(tmp)
         if isinstance(exc, HexsosError):
             raise
+        dep = missing_package(exc, f"{p}: writing {format_name(fmt)}")
+        if dep is not None:
+            raise dep from None
         if isinstance(exc, (Exception, SystemExit)):
             said = "; ".join(m for m in log if not m.startswith("Info"))
             reason = str(exc) or said or type(exc).__name__

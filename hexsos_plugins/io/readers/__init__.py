@@ -51,7 +51,7 @@ from pathlib import Path
 
 import meshio
 
-from ...errors import MeshFormatError, MeshReadError, UnsupportedFormatError
+from ...errors import DependencyError, MeshFormatError, MeshReadError, UnsupportedFormatError
 from ..mesh import Mesh
 from ..formats import (READ_ALIASES, ext_formats, few_exts, format_name, reader_formats, readers_for,
                        register_reader, supported_extensions)
@@ -252,6 +252,8 @@ def _read_any(path, file_format):
                 failures.append((fmt, who, str(exc)))
                 broken = broken or (who == "numpy" and "declines" not in str(exc))
                 continue
+            except DependencyError:  # the format's package is missing: say which, whatever the other readers say
+                raise
             except (Exception, SystemExit) as exc:  # a malformed file must end in a typed error, whatever breaks
                 failures.append((fmt, who, f"unexpected content ({type(exc).__name__}: {shorten(exc, 160)})"))
                 continue

@@ -1,7 +1,7 @@
 """What the tolerant readers share: their error type, cell blocks of any type name, meshio's reader with its
 output captured.
 
-Imports :mod:`hexsos_plugins.io.meshio_conventions` only.
+Imports :mod:`hexsos_plugins.io.meshio_conventions` and :mod:`hexsos_plugins.io.formats` only.
 """
 
 from __future__ import annotations
@@ -12,7 +12,8 @@ from pathlib import Path
 import meshio
 import numpy as np
 
-from ..meshio_conventions import DIMS, meshio_dimensions, quiet_meshio, shorten
+from ..formats import format_name
+from ..meshio_conventions import DIMS, meshio_dimensions, missing_package, quiet_meshio, shorten
 
 __all__ = ["ParseError", "make_block", "meshio_read"]
 
@@ -39,6 +40,9 @@ def meshio_read(path: Path, fmt: str):
         with quiet_meshio() as log, meshio_dimensions():
             mesh = meshio.read(str(path), file_format=fmt)
     except (Exception, SystemExit) as exc:
+        dep = missing_package(exc, f"{path}: reading {format_name(fmt)}")
+        if dep is not None:
+            raise dep from None
         said = [re.sub(r"^(Warning|Error):\s*", "", m) for m in log if not m.startswith("Info")]
         text = str(exc) if not isinstance(exc, SystemExit) else ""
         reason = "; ".join(x for x in [text] + said if x) or type(exc).__name__
