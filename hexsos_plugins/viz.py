@@ -38,7 +38,11 @@ def _pyvista():
 
 
 def _blocks(cells):
-    """[(cell_type, conn)] from an (M, 8) hex array or a list of (cell_type, conn) pairs."""
+    """[(cell_type, conn)] from an (M, 8) hex array, a list of (cell_type, conn) pairs, or meshio's cells."""
+    from .cells.inputs import cell_pairs
+
+    pairs, _ = cell_pairs(cells)
+    cells = pairs if pairs is not None else cells
     if isinstance(cells, (list, tuple)) and cells and isinstance(cells[0], (list, tuple)) and isinstance(cells[0][0], str):
         return [(t, np.asarray(c, dtype=np.int64)) for t, c in cells]
     return [("hexahedron", np.asarray(cells, dtype=np.int64))]

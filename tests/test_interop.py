@@ -223,3 +223,26 @@ def test_exodus_xdmf_and_med_read_and_a_missing_package_is_named(result_vtu, tmp
     assert cli.main(["check", str(path)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and f"pip install {package}" in err[0], err
+
+
+# ---------------------------------------------------------------------------------------------- item 5
+def test_check_takes_meshio_cells_and_meshes(gmsh_box):
+    m = meshio.read(str(gmsh_box))  # quad blocks (the walls) and a hexahedron block, in meshio's CellBlocks
+    assert {b.type for b in m.cells} == {"quad", "hexahedron"}
+    H = np.concatenate([b.data for b in m.cells if b.type == "hexahedron"])
+    ref = hs.check(m.points, H)
+    assert ref.counts()["invalid"] > 0
+    for got in (hs.check(m.points, m.cells), hs.check(m), hs.check(m.points, m), hs.check(hs.read(str(gmsh_box)))):
+        assert np.array_equal(got.status, ref.status) and np.array_equal(got.min_det, ref.min_det)
+    assert hs.check(m).extra["not_checked"] == {"quad": 32}
+    assert "not_checked" not in ref.extra
+    # two hexahedron blocks, as meshio gives a file with two volumes
+    two = [meshio.CellBlock("hexahedron", H[:20]), meshio.CellBlock("hexahedron", H[20:])]
+    assert np.array_equal(hs.check(m.points, two).status, ref.status)
+    sj = hs.scaled_jacobian(m.points, m.cells)
+    assert np.array_equal(sj, hs.scaled_jacobian(m.points, H))
+    # only 2-D cells: a typed error that says what was found
+    with pytest.raises(hs.NoHexahedraError, match="32 quad"):
+        hs.check(m.points, [b for b in m.cells if b.type == "quad"])
+    with pytest.raises(hs.InvalidInputError, match="found None"):
+        hs.check(m.points)

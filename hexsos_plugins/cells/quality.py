@@ -133,7 +133,12 @@ def _cell_values(X, name) -> np.ndarray:
 
 
 def as_cell_list(cells) -> list:
-    """``cells`` as a list of (type name, (M, n) int array): an (M, 8) array is a list of one hexahedron block."""
+    """``cells`` as a list of (type name, (M, n) int array): an (M, 8) array is a list of one hexahedron block;
+    meshio's cells and meshes as :func:`hexsos_plugins.cells.inputs.cell_pairs` takes them."""
+    from .inputs import cell_pairs
+
+    pairs, _ = cell_pairs(cells)
+    cells = pairs if pairs is not None else cells
     if isinstance(cells, (list, tuple)) and (len(cells) == 0 or isinstance(cells[0], (list, tuple))):
         out = []
         for item in cells:

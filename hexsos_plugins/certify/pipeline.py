@@ -371,8 +371,18 @@ def validate_cells(points, cells):
     ``cells`` is an (M, 8) integer array (trilinear hexahedra), a sequence of ``(cell_type, conn)`` pairs or a
     mapping ``{cell_type: conn}``; ``cell_type`` a name of :data:`hexsos_plugins.cells.elements.CELL_TYPES` (or
     ``"voxel"``, converted to a hexahedron), ``conn`` (M_t, n_t) in VTK node order.
+    meshio's ``CellBlock`` lists, a ``meshio.Mesh`` and a hexsos ``Mesh`` are taken too
+    (:func:`hexsos_plugins.cells.inputs.cell_pairs`: blocks that are not 3-D left out).
     Returns ``(points (N, 3), [(cell_type, conn (M_t, n_t) int64), ...])``."""
+    from ..cells.inputs import cell_pairs
+
     P = _points(points)
+    pairs, not_checked = cell_pairs(cells)
+    if pairs is not None:
+        if not pairs:
+            found = ", ".join(f"{n} {t}" for t, n in not_checked.items()) or "no cell blocks"
+            raise NoHexahedraError(f"no 3-D cells given: expected at least one block of 3-D cells, found {found}")
+        cells = pairs
     if isinstance(cells, dict):
         pairs = list(cells.items())
     elif isinstance(cells, (list, tuple)) and cells and isinstance(cells[0], (list, tuple)) and len(cells[0]) == 2 \
@@ -631,7 +641,7 @@ def _local(P, conn):
     return np.ascontiguousarray(P[used]), inv.reshape(conn.shape).astype(np.int64)
 
 
-def check(points, cells, *, method: str = "auto", relaxation: str = "quad2", rtol: float = 1e-9,
+def check(points, cells=None, *, method: str = "auto", relaxation: str = "quad2", rtol: float = 1e-9,
           flat_rtol: float = 1e-12, max_depth: int = 30, max_boxes: int = 2000, sos_tol: float = 1e-8,
           sos_max_iter: int = 100, exact_boxes: int = 400, progress=None, jobs: int = 1, processes: int = 1,
           scheduler=None, block_size: int | None = None, executor=None, quality: bool = False) -> CheckResult:
@@ -639,10 +649,13 @@ def check(points, cells, *, method: str = "auto", relaxation: str = "quad2", rto
 
     Parameters
     ----------
-    points : array_like, shape (N, 3)
-    cells : array_like of int, shape (M, 8); or a sequence of (cell_type, conn) pairs; or {cell_type: conn}
+    points : array_like, shape (N, 3); or a meshio.Mesh or hexsos Mesh, given alone (``check(mesh)``)
+    cells : array_like of int, shape (M, 8); or a sequence of (cell_type, conn) pairs; or {cell_type: conn};
+        or meshio's cells (``meshio.read(f).cells``, a list of ``CellBlock``) or a ``meshio.Mesh``
         Trilinear hexahedra (M, 8), or blocks of any type of :data:`hexsos_plugins.cells.elements.CELL_TYPES` (and
         ``"voxel"``); node order VTK's (see :mod:`hexsos_plugins.cells.elements`). Results follow the blocks' order.
+        Of meshio's blocks, those that are not 3-D (a Gmsh mesh's boundary quadrilaterals, ...) are left out,
+        as :func:`hexsos_plugins.read` leaves them out of a file, and counted in ``result.extra["not_checked"]``.
     method : {"auto", "sos"}, keyword-only
         ``"auto"`` (default): the compiled kernel (Bernstein bounds and branch-and-bound) on every cell, the
         SOS relaxation on trilinear hexahedra whose bracket stays open. ``"sos"``: the relaxation on every
@@ -704,6 +717,13 @@ def check(points, cells, *, method: str = "auto", relaxation: str = "quad2", rto
     for name, v in (("jobs", jobs), ("processes", processes)):
         if not isinstance(v, (int, np.integer)) or v < 0:
             raise InvalidInputError(f"{name}: expected a number >= 0 (0: one per core), found {v!r}")
+    from ..cells.inputs import cell_pairs, mesh_points_and_cells
+
+    points, cells = mesh_points_and_cells(points, cells)
+    if cells is None:
+        raise InvalidInputError("cells: expected hexahedra (M, 8), (cell_type, conn) pairs or meshio's cells, "
+                                "found None")
+    not_checked = cell_pairs(cells)[1]
     P, blocks = validate_cells(points, cells)
     t0 = time.perf_counter()
     opts = _Options(method, relaxation, float(rtol), float(flat_rtol), int(max_depth), int(max_boxes), float(sos_tol),
@@ -750,4 +770,6 @@ def check(points, cells, *, method: str = "auto", relaxation: str = "quad2", rto
     if quality:
         with threads_for(jobs):
             result.add_quality(P, [(name, conn) for name, conn in blocks])
+    if not_checked:
+        result.extra["not_checked"] = dict(not_checked)
     return result

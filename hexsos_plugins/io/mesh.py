@@ -64,6 +64,7 @@ import meshio
 import numpy as np
 
 from ..cells.elements import CELL_TYPES, ELEMENTS, HEX_FACES, VOXEL_TO_VTK
+from ..cells.inputs import CHECKABLE, is_3d  # noqa: F401 (re-exported: io.mesh.CHECKABLE, io.mesh.is_3d)
 from ..errors import InvalidInputError, NoCellsError, NoHexahedraError  # noqa: F401 (NoHexahedraError re-exported)
 
 __all__ = ["Mesh", "HexMesh", "HEX_FACES", "FLIP", "INT_FILL", "HEX_TYPES", "MIRROR", "FACE_NODES", "CHECKABLE",
@@ -74,10 +75,7 @@ INT_FILL = -2
 #: meshio cell types that hold trilinear hexahedra.
 HEX_TYPES = ("hexahedron", "voxel")
 #: meshio cell types that are checked: the registry's and ``voxel``.
-CHECKABLE = tuple(ELEMENTS) + ("voxel",)
 
-_3D_PREFIXES = ("tetra", "hexahedron", "wedge", "pyramid", "polyhedron", "voxel", "VTK_LAGRANGE_TETRA",
-                "VTK_LAGRANGE_HEXA", "VTK_LAGRANGE_WEDGE", "VTK_LAGRANGE_PYRA")
 
 
 def _mirror(el) -> np.ndarray:
@@ -122,11 +120,6 @@ class _PerType(dict):
 
 #: For each checkable type, per corner face: all the cell's nodes on that face (corners first).
 FACE_NODES = _PerType(_face_nodes)
-
-
-def is_3d(cell_type: str) -> bool:
-    """Is a meshio cell type name a 3-D cell (checked or not)?"""
-    return str(cell_type).startswith(_3D_PREFIXES)
 
 
 def _where(path) -> str:
