@@ -2,9 +2,12 @@
 then ``hexsos demo``, ``hexsos paraview`` (the real ParaView GUI under Xvfb), ``hexsos gmsh --help`` and the plugin
 file loaded from site-packages by ``pvpython``, with no HEXSOS_* variable set.
 
-The environment sees this Python's packages (``--system-site-packages``: numpy, clarabel, ... are not
-reinstalled) and gets hexsos itself from a wheel built from a copy of the working tree; every test asserts
-that the files ParaView loaded are the wheel's, in the environment's site-packages, not the checkout.
+The environment sees this Python's packages (numpy, clarabel, ... are not reinstalled) and gets hexsos itself
+from a wheel built from a copy of the working tree; every test asserts that the files ParaView loaded are the
+wheel's, in the environment's site-packages, not the checkout. "This Python" is the one running the tests: when it
+is itself a virtual environment (the README's Quickstart in a user's venv), ``--system-site-packages`` alone
+would give the nested environment the *base* interpreter's packages, not the venv's, so a ``.pth`` file adds the
+venv's site-packages behind the nested environment's own (:func:`_outer_site_packages`).
 """
 
 import importlib.metadata
@@ -74,6 +77,27 @@ def _can_build_without_isolation():
     return (_version("setuptools") or (0, 0)) >= (70, 1)  # setuptools >= 70.1 builds wheels on its own
 
 
+def _outer_site_packages():
+    """The site-packages of the Python running the tests when it is a virtual environment (else [], the base
+    interpreter's being what ``--system-site-packages`` adds)."""
+    import site
+
+    if sys.prefix == sys.base_prefix:
+        return []
+    return [d for d in site.getsitepackages() if os.path.isdir(d)]
+
+
+def _see_outer_packages(w):
+    """Let the nested environment import what the running venv holds (after its own packages: the wheel's hexsos
+    wins). ``site.addsitedir`` also runs the venv's own ``.pth`` files, as ``--system-site-packages`` does."""
+    outer = _outer_site_packages()
+    if outer:
+        lines = [f"import site; site.addsitedir({d!r})" for d in outer]
+        with open(os.path.join(w.site, "_hexsos_test_outer_venv.pth"), "w") as fh:
+            fh.write("\n".join(lines) + "\n")
+    return outer
+
+
 @pytest.fixture(scope="module")
 def wheel(tmp_path_factory):
     base = tmp_path_factory.mktemp("wheel")
@@ -88,6 +112,7 @@ def wheel(tmp_path_factory):
     outside = (_version("pip") or (0, 0)) >= (22, 3)  # pip --python: no pip needed inside the environment
     subprocess.run([sys.executable, "-m", "venv", "--system-site-packages"] + (["--without-pip"] if outside else [])
                    + [str(w.venv)], check=True, timeout=300)
+    _see_outer_packages(w)
     pip_cmd = [sys.executable, "-m", "pip", "--python", w.python] if outside else [w.python, "-m", "pip"]
     install = pip_cmd + ["install", "--no-deps", "--no-input", "-q"]
     if not _can_build_without_isolation():  # setuptools < 70.1 needs the wheel package to build a wheel

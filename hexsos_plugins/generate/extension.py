@@ -22,6 +22,7 @@ def extension():
     os.environ["HEXSOS_KERNEL"] = "jit"  # the kernel module must not look for the extension being built
     import numba
     import numba.pycc.compiler as pycc_compiler
+    import numpy
     from numba.pycc import CC
 
     class _ReleaseGil(pycc_compiler.Flags):
@@ -48,4 +49,7 @@ def extension():
     exec(f"def source_hash_prefix():\n    return {int(source_hash()[:15], 16)}\n", ns)
     cc.export("source_hash_prefix", "i8()")(ns["source_hash_prefix"])
     write_tables()  # the tables too (exact rational arithmetic once, at build time)
-    return cc.distutils_extension()
+    # numpy's headers first: numba puts the Python include directory first, where Debian's python3-numpy links
+    # its own numpy headers (/usr/include/python3.X/numpy, NumPy 1.x), and an extension built against those fails
+    # to import under the NumPy 2 the build environment (and the user's venv) holds
+    return cc.distutils_extension(include_dirs=[numpy.get_include()])
