@@ -246,3 +246,61 @@ def test_check_takes_meshio_cells_and_meshes(gmsh_box):
         hs.check(m.points, [b for b in m.cells if b.type == "quad"])
     with pytest.raises(hs.InvalidInputError, match="found None"):
         hs.check(m.points)
+
+
+# ---------------------------------------------------------------------------------------------- item 6
+def _medit_text_vertices(text):
+    """The 'Vertices' coordinates of a Medit file as Python parses each number of the text (float64)."""
+    words = text.split()
+    i = next(k for k, w in enumerate(words) if w.lower() == "vertices")
+    n = int(words[i + 1])
+    return np.array([[float(x) for x in words[i + 2 + 4 * r: i + 5 + 4 * r]] for r in range(n)])
+
+
+MEDIT_V1 = """MeshVersionFormatted 1
+Dimension 3
+Vertices
+8
+0 0 0 1
+1.0000000000000002 0 0 1
+1 0.309011 0 1
+0 1 0.1234567890123456789 1
+0 0 1 1
+1 0 1 1
+1 1 1.0000001 1
+3.141592653589793 1 1 1
+Hexahedra
+1
+1 2 3 4 5 6 7 8 1
+End
+"""
+
+
+def test_medit_files_are_read_at_float64_whatever_the_version_line(tmp_path):
+    from hexsos_plugins.readers import readers_for
+
+    path = tmp_path / "v1.mesh"
+    path.write_text(MEDIT_V1)
+    want = _medit_text_vertices(MEDIT_V1)
+    assert meshio.read(str(path)).points.dtype == np.float32  # what meshio alone does with version 1
+    got = hs.read(str(path))
+    assert got.points.dtype == np.float64 and np.array_equal(got.points, want)  # digit for digit
+    # every reader hexsos may use for the file gives the text's numbers, meshio's included
+    for who, reader in readers_for(path, "medit"):
+        assert np.array_equal(np.asarray(reader(path).points), want), who
+    # convert writes the file's numbers, not their single-precision neighbours
+    out = tmp_path / "o.vtu"
+    assert cli.main(["convert", str(path), str(out)]) == 0
+    assert np.array_equal(meshio.read(str(out)).points, want)
+
+
+@pytest.mark.parametrize("name", ["cat_2.mesh", "Dolphin_2.mesh"])
+def test_published_medit_files_are_read_digit_for_digit(name):
+    from conftest import SHARED
+
+    path = os.path.join(SHARED, "hexalab", name)
+    if not os.path.exists(path):
+        pytest.skip(f"{name} is not in the shared test data")
+    with open(path) as fh:
+        text = fh.read()
+    assert np.array_equal(hs.read(path).points, _medit_text_vertices(text))

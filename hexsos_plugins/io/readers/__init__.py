@@ -50,6 +50,7 @@ import sys
 from pathlib import Path
 
 import meshio
+import numpy as np
 
 from ...errors import DependencyError, MeshFormatError, MeshReadError, UnsupportedFormatError
 from ..mesh import Mesh
@@ -60,7 +61,7 @@ from ..meshio_conventions import fix_read_order, shorten
 from .gmsh22_data import read_gmsh22_data
 from .gmsh_api import read_gmsh_api
 from .legacy_vtk import read_legacy_vtk, recheck_vtk51_tetra
-from .medit import read_medit_text
+from .medit import medit_points_float64, read_medit_text
 from .msh_binary import read_msh_binary
 from .vtk_api import read_vtk_api
 
@@ -134,9 +135,27 @@ def _numpy_msh(path: Path, fmt: str):
     return read_msh_binary(path)
 
 
-@register_reader(("gmsh", "vtu", "vtk", "medit", "*"), "meshio", rank=1)
+@register_reader(("gmsh", "vtu", "vtk", "*"), "meshio", rank=1)
 def _meshio(path: Path, fmt: str):
     return via_meshio(path, fmt)
+
+
+@register_reader("medit", "meshio", rank=1)
+def _meshio_medit(path: Path, fmt: str):
+    """meshio's Medit reader, with an ASCII file's coordinates read again at float64 when meshio rounded them
+    (it reads 'MeshVersionFormatted 1' in single precision)."""
+    mesh = via_meshio(path, fmt)
+    if mesh.points.dtype != np.float64 and not _binary_medit(path):
+        exact = medit_points_float64(path.read_bytes(), len(mesh.points))
+        if exact is None or exact.shape[1] != mesh.points.shape[1]:
+            raise ParseError("meshio read the coordinates in single precision and the 'Vertices' section could "
+                             "not be read again at float64")
+        mesh.points = np.ascontiguousarray(exact)
+    return mesh
+
+
+def _binary_medit(path: Path) -> bool:
+    return path.name.lower().endswith(".meshb")
 
 
 def via_meshio(path: Path, fmt: str):
@@ -178,7 +197,8 @@ def _tolerant_vtk(path: Path, fmt: str):
     return read_legacy_vtk(path.read_bytes(), path)
 
 
-@register_reader("medit", "hexsos", rank=2)
+# the text read at float64 whatever its version line: hexsos's reader first (meshio's is the fallback)
+@register_reader("medit", "hexsos", rank=0, applies=lambda p, head: not _binary_medit(p))
 def _tolerant_medit(path: Path, fmt: str):
     return read_medit_text(path.read_bytes(), path)
 

@@ -10,7 +10,7 @@ import numpy as np
 from .common import ParseError
 from .tokens import Cursor, is_number, numbers
 
-__all__ = ["read_medit_text"]
+__all__ = ["read_medit_text", "medit_points_float64"]
 
 
 _MEDIT_CELLS = {
@@ -114,3 +114,32 @@ def _medit_keyword_follows(cur: Cursor) -> bool:
 
 
 read_medit_text = read_medit_text
+
+
+def medit_points_float64(raw: bytes, n_points: int):
+    """The 'Vertices' coordinates of an ASCII Medit file as float64 (N, dim), read from the text: meshio reads
+    them in single precision when the file says ``MeshVersionFormatted 1``. None when the section cannot be
+    found or holds another number of vertices than ``n_points``."""
+    cur = Cursor(raw, comment="#")
+    dim = 3
+    while True:
+        tok, at = cur.token()
+        if tok is None:
+            return None
+        key = tok.lower()
+        if key == "dimension":
+            value, _ = cur.token()
+            if value is None or not value.isdigit():
+                return None
+            dim = int(value)
+        elif key == "vertices":
+            value, _ = cur.token()
+            if value is None or not value.isdigit() or int(value) != n_points:
+                return None
+            count = int(value)
+            try:
+                vals = numbers(cur.take(count * (dim + 1)), count * (dim + 1), np.float64, "'Vertices'",
+                                cur.lineno(at))
+            except ParseError:
+                return None
+            return vals.reshape(count, dim + 1)[:, :dim]
