@@ -208,3 +208,23 @@ def test_property_repair_keeps_valid_hexes_and_repairs_invalid_ones(X, Y):
     for k in range(2):
         if r.status[k] == 1:
             assert np.array_equal(rep.points[8 * k : 8 * k + 8], P[8 * k : 8 * k + 8])
+
+
+@pytest.mark.parametrize("eps", [1e-16, -1e-16, 1e-15, -1e-15])
+@pytest.mark.parametrize("vertex, where", [(6, (1.0, 1.0, 0.0)), (4, (0.0, 0.0, 0.0)), (1, (0.5, 0.5, 0.0))])
+def test_coordinates_near_2_to_the_1000_give_a_verdict_flagged_unrepresentable(eps, vertex, where):
+    """Cells whose sign only exact arithmetic settles, at 2^1000: their det J (~2^3000) lies beyond float64, so
+    the verdict comes with ``unrepresentable`` set and the values clamped to the largest float, never an
+    OverflowError. The same cells at scale 1 are the reference verdicts."""
+    import hexsos_plugins as hs
+    from hexsos_plugins.certify import METHOD_NAMES
+
+    cube = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [0, 0, 1], [1, 0, 1], [1, 1, 1], [0, 1, 1]], float)
+    cube[vertex] = np.array(where) + [0.0, 0.0, eps]
+    H = np.arange(8)[None]
+    ref = hs.check(cube, H)
+    r = hs.check(cube * 2.0**1000, H)
+    assert METHOD_NAMES[int(r.method[0])] == "exact"  # the path that overflowed
+    assert r.status[0] == ref.status[0] and r.unrepresentable[0] and not ref.unrepresentable[0]
+    assert np.sign(r.min_det[0]) == np.sign(ref.min_det[0]) and abs(r.min_det[0]) == np.finfo(float).max
+    assert r.to_dict()["unrepresentable"] == 1

@@ -511,7 +511,7 @@ def _check_block(P, conn, name, opts: _Options, progress=None, offset=0, total=N
     method[flat] = _FLAT
     near = np.flatnonzero(near)
     if near.size:
-        from ..kernel.exact import decide, round_down, round_nearest
+        from ..kernel.exact import beyond_float, decide, round_down, round_nearest
 
         el = ELEMENTS[name]
         for i in near:
@@ -530,7 +530,7 @@ def _check_block(P, conn, name, opts: _Options, progress=None, offset=0, total=N
             min_det[i] = round_nearest(value_q)
             low_w[i] = round_down(lo_q) if st == 1 else min(low_w[i], round_down(value_q))
             unrep[i] = bool(float(min_det[i]) != value_q and abs(min_det[i]) < 2.0**-1022) or (
-                st == 1 and low_w[i] <= 0.0)
+                st == 1 and low_w[i] <= 0.0) or beyond_float(value_q) or (st == 1 and beyond_float(lo_q))
     return CheckResult(min_det=min_det, lower_bound=low_w, argmin=argmin, status=status, corner_min_det=corner,
                        method=method, recovery_ratio=ratio, sos_status=sos_status, scale=scale_w,
                        cell_type=np.full(M, CELL_TYPES.index(name), dtype=np.int8), unrepresentable=unrep,

@@ -26,7 +26,7 @@ import numpy as np
 
 from ..cells.jacobian import formulation, space
 
-__all__ = ["exact_coefficients", "decide", "round_down", "round_nearest"]
+__all__ = ["exact_coefficients", "decide", "round_down", "round_nearest", "beyond_float"]
 
 
 def exact_coefficients(X, name: str) -> list:
@@ -164,8 +164,16 @@ def round_nearest(q) -> float:
     subnormal of its sign; one that overflows the largest float of its sign)."""
     try:
         f = float(q)
-    except OverflowError:
-        return math.copysign(1.7976931348623157e308, q)
+    except OverflowError:  # q is a Fraction or an int: its sign by comparison (math.copysign would convert it)
+        return -1.7976931348623157e308 if q < 0 else 1.7976931348623157e308
     if f == 0.0 and q != 0:
-        return math.copysign(5e-324, q)
+        return -5e-324 if q < 0 else 5e-324
     return f
+
+
+def beyond_float(q) -> bool:
+    """Does the rational q lie beyond float64's range (|q| > the largest float)?"""
+    return abs(q) > _MAX_FLOAT
+
+
+_MAX_FLOAT = Fraction(1.7976931348623157e308)
