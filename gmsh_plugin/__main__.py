@@ -70,7 +70,8 @@ def add_arguments(p) -> None:
     p.add_argument("--auto-action", choices=("check", "repair"),
                    help="press this button once the GUI is up (headless: what to run; default check)")
     p.add_argument("--screenshot", metavar="PNG",
-                   help="with the GUI: save the graphics window (seen obliquely) once --auto-action has run")
+                   help="with the GUI: save the graphics window (seen obliquely) once --auto-action has run; "
+                        "without --auto-action, the picture of the model as opened, and the GUI closes")
     p.add_argument("--exit-after", action="store_true",
                    help="with the GUI: close it once --auto-action has run (and the screenshot is saved)")
     p.add_argument("--version", action="version", version=f"{PROG} (hexsos) {__version__}")
@@ -157,12 +158,15 @@ def _gui(gmsh, args, label) -> int:
         hx = model_cells()
         gmsh.onelab.setString(panel.R_MESSAGE, [f"{label}: {hx.describe()}; press Check"])
     except NoHexahedraError as exc:  # the user may still mesh the model in the GUI
-        gmsh.onelab.setString(panel.R_MESSAGE, [f"{exc}; mesh the model (3D, recombined), then press Check"])
+        gmsh.onelab.setString(panel.R_MESSAGE, [f"{exc}; then press Check"])
     if args.screenshot:  # an oblique view shows the hexes in depth (Gmsh opens looking down -z)
         gmsh.option.setNumber("General.Trackball", 0)
         gmsh.option.setNumber("General.RotationX", -50)
         gmsh.option.setNumber("General.RotationZ", -30)
     result = panel.event_loop(auto_action=args.auto_action, screenshot=args.screenshot, exit_after=args.exit_after)
+    if args.screenshot and not args.auto_action:  # the picture of the model as opened: the GUI has closed
+        print(f"wrote {args.screenshot}")
+        return 0
     if args.exit_after and args.auto_action:
         error = panel.last_error()
         if error is not None:

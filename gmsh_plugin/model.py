@@ -25,7 +25,11 @@ hexahedra, whose Gmsh reference cube is [-1, 1]^3; 1/2 for prisms; 1 for tetrahe
 Views posted (re-posted in place on every check, so repeated checks do not pile up views):
 
 * ``"hexsos: min det J"``: ElementData, the exact minimum of det J of every checked element.
-* ``"hexsos: status"``: ElementData, 1 valid, 0 invalid, -1 undecided; drawn only where not valid.
+* ``"hexsos: status"``: ElementData, 1 valid, 0 invalid, -1 undecided; drawn only where not valid, invalid
+  dark red and undecided orange (no colour bar: the key says what the colours mean).
+* ``"hexsos: invalid inside only"``: ElementData over the invalid elements that are valid at every node (what
+  node checks miss), value 0, drawn magenta just around them.
+* ``"hexsos: key"``: two lines of text at the top of the graphics naming the colours, with the counts.
 * ``"hexsos: where invalid elements fold"``: list data, one scalar point (``SP``) per invalid element at
   x(u*), the world position of its argmin, valued by its min det J.
 * ``"hexsos: displacement"`` (after a repair): NodeData, the vector each node moved.
@@ -47,9 +51,12 @@ __all__ = [
     "VIEW_STATUS",
     "VIEW_ARGMIN",
     "VIEW_DISPLACEMENT",
+    "VIEW_INSIDE_ONLY",
+    "VIEW_KEY",
     "VIEW_NAMES",
     "VIEW_SAFE_STEP",
     "safe_step_model",
+    "STATUS_RGB",
     "HEX8",
     "model_cells",
     "model_hexes",
@@ -71,9 +78,14 @@ VIEW_MIN_DET = "hexsos: min det J"
 VIEW_STATUS = "hexsos: status"
 VIEW_ARGMIN = "hexsos: where invalid elements fold"
 VIEW_DISPLACEMENT = "hexsos: displacement"
+VIEW_INSIDE_ONLY = "hexsos: invalid inside only"
+VIEW_KEY = "hexsos: key"
 #: Result keys of :func:`post_views` / :func:`hexsos_views` and the view names they stand for.
 VIEW_NAMES = {"min_det": VIEW_MIN_DET, "status": VIEW_STATUS, "argmin": VIEW_ARGMIN,
-              "displacement": VIEW_DISPLACEMENT}
+              "displacement": VIEW_DISPLACEMENT, "inside_only": VIEW_INSIDE_ONLY, "key": VIEW_KEY}
+#: Colours of the status view (undecided, invalid), of the invalid-inside-only elements, as RGB 0-255: the
+#: other doors' (orange undecided, red invalid, magenta invalid inside only)
+STATUS_RGB = {"undecided": (255, 140, 0), "invalid": (170, 0, 0), "inside_only": (255, 0, 255)}
 
 
 class GmshModelError(HexsosError, RuntimeError):
@@ -185,11 +197,13 @@ def model_cells() -> GmshCells:
     model = gmsh.model.getCurrent()
     if not raw:
         msg = f"the Gmsh model '{model}' holds no 3-D elements hexsos checks"
-        if skipped:
-            msg += "; it holds " + ", ".join(f"{k} {name}" for name, k in skipped.items())
-        else:
-            dims = [d for d in (2, 1, 0) if len(gmsh.model.mesh.getElementTypes(d))]
-            msg += f" (its elements are of dimension {', '.join(map(str, dims))})" if dims else " (it has no mesh)"
+        if skipped:  # a 3-D mesh, of an order (or type) with no exact element here: say so, not "mesh it"
+            msg += ("; it holds " + ", ".join(f"{k} {name}" for name, k in skipped.items())
+                    + ", of a type hexsos has no exact element for (it checks tetrahedra, pyramids, prisms and "
+                      "hexahedra of order 1 and 2): set the mesh order to 1 or 2 (Mesh.ElementOrder) and mesh again")
+            raise NoCellsError(msg)
+        dims = [d for d in (2, 1, 0) if len(gmsh.model.mesh.getElementTypes(d))]
+        msg += f" (its elements are of dimension {', '.join(map(str, dims))})" if dims else " (it has no mesh)"
         raise NoCellsError(msg + ": mesh it in 3-D first")
     used = np.unique(np.concatenate([c.ravel() for _, _, c in raw] + skipped_raw))
     all_tags, coords, _ = gmsh.model.mesh.getNodes(returnParametricCoord=False)
@@ -376,6 +390,30 @@ def post_views(result, element_tags=None, points=None, cells=None, *, model: str
     gmsh.view.option.setNumber(tag, "IntervalsType", 3)  # discrete colours
     gmsh.view.option.setNumber(tag, "NbIso", 2)
     gmsh.view.option.setString(tag, "Format", "%g")
+    _colour_table(tag, [STATUS_RGB["undecided"], STATUS_RGB["invalid"]])
+
+    inside = np.flatnonzero(np.asarray(result.invalid_inside_only, dtype=bool)) if len(result) else np.zeros(0, int)
+    views["inside_only"] = tag = _new_view("inside_only", existing)
+    if inside.size:
+        gmsh.view.addHomogeneousModelData(tag, 0, model, "ElementData", element_tags[inside],
+                                          np.zeros(inside.size), numComponents=1)
+    else:
+        gmsh.view.addListData(tag, "SS", 0, [])
+    gmsh.view.option.setNumber(tag, "ShowScale", 0)
+    gmsh.view.option.setNumber(tag, "Explode", 1.02)  # drawn just around the dark red of the status view
+    _colour_table(tag, [STATUS_RGB["inside_only"]])
+
+    # the key, at the top left of the graphics, instead of the status view's colour bar, whose
+    # values (-1, 0) would say nothing: what each colour means, with the counts
+    gmsh.view.option.setNumber(views["status"], "ShowScale", 0)
+    c = result.counts()
+    lines = [f"hexsos: {c['invalid']} invalid (dark red), {c['invalid_inside_only']} of them inside only "
+             f"(magenta), {c['undecided']} undecided (orange)",
+             "white spheres: where det J is smallest" if c["invalid"] else "every element not drawn is valid"]
+    views["key"] = tag = _new_view("key", existing)
+    for k, line in enumerate(lines):
+        gmsh.view.addListDataString(tag, [10, 14 + 18 * k], [line], ["FontSize", "14"])
+    gmsh.view.option.setNumber(tag, "ShowScale", 0)
 
     bad = np.flatnonzero(np.asarray(result.status) == 0)
     views["argmin"] = tag = _new_view("argmin", existing)
@@ -394,6 +432,22 @@ def post_views(result, element_tags=None, points=None, cells=None, *, model: str
     return views
 
 
+def _colour_table(tag: int, colours) -> None:
+    """Set the colour table of view ``tag`` (``View[i].ColorTable``, which the API sets through Gmsh's parser)."""
+    import os
+    import tempfile
+
+    gmsh = _gmsh()
+    table = ", ".join("{%d, %d, %d}" % tuple(int(v) for v in rgb) for rgb in colours)
+    fd, path = tempfile.mkstemp(suffix=".geo", prefix="hexsos-colours-")
+    try:
+        with os.fdopen(fd, "w") as fh:
+            fh.write(f"View[{gmsh.view.getIndex(tag)}].ColorTable = {{ {table} }};\n")
+        gmsh.merge(path)
+    finally:
+        os.remove(path)
+
+
 def post_displacement(node_tags, displacement, *, model: str | None = None) -> int:
     """Post a NodeData vector view ``"hexsos: displacement"`` (how far each node moved); returns its tag."""
     gmsh = gmsh_api()
@@ -406,6 +460,16 @@ def post_displacement(node_tags, displacement, *, model: str | None = None) -> i
                                       numComponents=3)
     gmsh.view.option.setNumber(tag, "Visible", 0)
     return tag
+
+
+def _empty(tag: int) -> bool:
+    """A view posted with no data (list data of no element)."""
+    gmsh = _gmsh()
+    try:
+        _, counts, _ = gmsh.view.getListData(tag)
+    except Exception:  # a model-based view
+        return False
+    return sum(int(c) for c in counts) == 0
 
 
 def write_views(path: str) -> list:
@@ -424,14 +488,14 @@ def write_views(path: str) -> list:
     views = hexsos_views()
     if not views:
         raise GmshModelError("no hexsos views to write: run a check first")
-    order = [k for k in VIEW_NAMES if k in views]
+    order = [k for k in VIEW_NAMES if k in views and k != "key"]  # the key is a picture's legend, not data
     stem, ext = os.path.splitext(path)
     written = []
     try:
         if ext.lower() == ".msh":
             save_mesh = gmsh.option.getNumber("PostProcessing.SaveMesh")
             try:
-                model_based = [k for k in order if k != "argmin"]
+                model_based = [k for k in order if k != "argmin" and not (k == "inside_only" and _empty(views[k]))]
                 for i, key in enumerate(model_based):
                     gmsh.option.setNumber("PostProcessing.SaveMesh", 1 if i == 0 else 0)
                     gmsh.view.write(views[key], path, append=i > 0)

@@ -15,12 +15,13 @@ clicking it sets ``ONELAB/Action`` to the parameter's value, and the script's ev
 The panel (names as stored in ONELAB; Gmsh hides the leading digits, which fix the order)::
 
     hexsos
-      Parameters   Method (auto | sos), Relaxation (quad2 | paper), Repair rho, Repair margin (auto | number),
-                   Pin boundary, Repair max iterations, Repair method (optimize | paper), Repair boundary
-                   (slide | fixed | free), Repair target min scaled Jacobian (auto | number)
+      Parameters   Method (auto | sos), Relaxation (quad2 | paper), Repair method (optimize | paper), Repair
+                   boundary (slide | fixed | free), Target min scaled J (auto | number), Pin boundary, Repair
+                   iterations; the paper's method's own last: Rho, Margin (auto | number)
       [Check]  [Repair]
       Results      Elements checked, Invalid, Invalid inside only, Undecided, Minimum det J, Not checked,
-                   Message (with the counts per element type), Minimum scaled Jacobian, Other 3-D cells not valid
+                   Message (with the counts per element type), Minimum scaled J, Others not valid (3-D
+                   elements other than 8-node hexahedra)
 """
 
 from __future__ import annotations
@@ -78,13 +79,14 @@ ACTIONS = {"check": ACTION_CHECK, "repair": ACTION_REPAIR}
 _ROOT = "hexsos"
 P_METHOD = f"{_ROOT}/0Parameters/0Method"
 P_RELAXATION = f"{_ROOT}/0Parameters/1Relaxation"
-P_RHO = f"{_ROOT}/0Parameters/2Repair rho"
-P_MARGIN = f"{_ROOT}/0Parameters/3Repair margin"
-P_PIN = f"{_ROOT}/0Parameters/4Pin boundary"
-P_MAX_ITER = f"{_ROOT}/0Parameters/5Repair max iterations"
-P_REPAIR_METHOD = f"{_ROOT}/0Parameters/6Repair method"
-P_BOUNDARY = f"{_ROOT}/0Parameters/7Repair boundary"
-P_MIN_SJ = f"{_ROOT}/0Parameters/8Repair target min scaled Jacobian"
+P_REPAIR_METHOD = f"{_ROOT}/0Parameters/2Repair method"
+P_BOUNDARY = f"{_ROOT}/0Parameters/3Repair boundary"
+P_MIN_SJ = f"{_ROOT}/0Parameters/4Target min scaled J"
+P_PIN = f"{_ROOT}/0Parameters/5Pin boundary"
+P_MAX_ITER = f"{_ROOT}/0Parameters/6Repair iterations"
+# the paper's method only (and the optimizer's fallback to it): after the parameters every repair uses
+P_RHO = f"{_ROOT}/0Parameters/7Rho (paper's)"
+P_MARGIN = f"{_ROOT}/0Parameters/8Margin (paper's)"
 P_CHECK = f"{_ROOT}/1Check"
 P_REPAIR = f"{_ROOT}/2Repair"
 R_HEXES = f"{_ROOT}/3Results/0Elements checked"
@@ -94,8 +96,8 @@ R_UNDECIDED = f"{_ROOT}/3Results/3Undecided"
 R_MIN_DET = f"{_ROOT}/3Results/4Minimum det J"
 R_SKIPPED = f"{_ROOT}/3Results/5Not checked"
 R_MESSAGE = f"{_ROOT}/3Results/6Message"
-R_MIN_SJ = f"{_ROOT}/3Results/7Minimum scaled Jacobian"
-R_OTHER = f"{_ROOT}/3Results/8Other 3-D cells not valid"
+R_MIN_SJ = f"{_ROOT}/3Results/7Minimum scaled J"
+R_OTHER = f"{_ROOT}/3Results/8Others not valid"
 
 _LAST = {"result": None, "error": None}
 _RESULTS = (R_HEXES, R_INVALID, R_INSIDE_ONLY, R_UNDECIDED, R_MIN_DET, R_SKIPPED, R_MIN_SJ, R_OTHER)
@@ -113,15 +115,6 @@ def _parameters(method="auto", relaxation="quad2", rho=200.0, margin="auto", pin
                  "(the paper)"},
         {"type": "string", "name": P_RELAXATION, "values": [relaxation], "choices": ["quad2", "paper"],
          "help": "quad2: order 2 with u(1-u) >= 0 ...; paper: the paper's relaxation (section 4.2)"},
-        {"type": "number", "name": P_RHO, "values": [rho], "min": 0.0, "max": 1e4, "step": 10.0,
-         "help": "weight of the averaging step of the repair (Algorithm 2)"},
-        {"type": "string", "name": P_MARGIN, "values": [margin], "choices": ["auto", "1e-4", "1e-3", "1e-2"],
-         "help": "det J >= margin (relative to each hex's size) sought by the repair; auto: the repair's default"},
-        {"type": "number", "name": P_PIN, "values": [pin], "choices": [0, 1],
-         "help": "keep the boundary nodes where they are during the repair"},
-        {"type": "number", "name": P_MAX_ITER, "values": [max_iter], "min": 1, "max": 10000, "step": 10,
-         "help": "outer iterations of the repair (optimize: per stage, at most 60 untangling steps and 80 quality "
-                 "rounds below 100; paper: Algorithm 2's)"},
         {"type": "string", "name": P_REPAIR_METHOD, "values": [repair_method], "choices": ["optimize", "paper"],
          "help": "optimize: untangle, raise the minimum scaled Jacobian, certify every cell; paper: Algorithms 1-2"},
         {"type": "string", "name": P_BOUNDARY, "values": [boundary], "choices": ["slide", "fixed", "free"],
@@ -129,6 +122,17 @@ def _parameters(method="auto", relaxation="quad2", rho=200.0, margin="auto", pin
                  "(the paper's repair: fixed or free)"},
         {"type": "string", "name": P_MIN_SJ, "values": [min_sj], "choices": ["auto", "0.2", "0.3", "0.5"],
          "help": "stop raising the quality once every cell reaches this scaled Jacobian; auto: as high as it goes"},
+        {"type": "number", "name": P_PIN, "values": [pin], "choices": [0, 1],
+         "help": "keep the boundary nodes where they are during the repair"},
+        {"type": "number", "name": P_MAX_ITER, "values": [max_iter], "min": 1, "max": 10000, "step": 10,
+         "help": "outer iterations of the repair (optimize: per stage, at most 60 untangling steps and 80 quality "
+                 "rounds below 100; paper: Algorithm 2's)"},
+        {"type": "number", "name": P_RHO, "values": [rho], "min": 0.0, "max": 1e4, "step": 10.0,
+         "help": "the paper's method (and the optimizer's fallback to it): weight of the averaging step "
+                 "(Algorithm 2)"},
+        {"type": "string", "name": P_MARGIN, "values": [margin], "choices": ["auto", "1e-4", "1e-3", "1e-2"],
+         "help": "the paper's method (and the optimizer's fallback to it): det J >= margin (relative to each "
+                 "hex's size) sought; auto: the repair's default"},
         {"type": "string", "name": P_CHECK, "values": [ACTION_CHECK], "label": "Check",
          "attributes": {"Macro": "Action", "Aspect": "Button"},
          "help": "prove every 3-D element valid or invalid (tetrahedra, pyramids, prisms, hexahedra, linear and "
@@ -373,7 +377,7 @@ def handle_action(action: str | None = None) -> bool:
     return True
 
 
-def widen_menu(width: int = 360) -> None:
+def widen_menu(width: int = 430) -> None:
     """Before ``gmsh.fltk.initialize()``: make the tree wide enough for the panel's labels (Gmsh's default,
     200 pixels, cuts them), widening the window by as much so the graphics keep their size."""
     gmsh = gmsh_api()
@@ -399,7 +403,9 @@ def event_loop(*, auto_action: str | None = None, screenshot: str | None = None,
 
     ``auto_action`` ("check" or "repair") is triggered once at start, by setting ``ONELAB/Action`` as its
     button does; once it has run, ``screenshot`` (a .png/.jpg/... path) is saved and, with ``exit_after``,
-    the loop ends. Raises whatever ``gmsh.fltk.initialize`` raises when there is no display.
+    the loop ends. A ``screenshot`` without ``auto_action`` is the picture of the model as opened: taken once
+    the window is drawn, and the loop ends (there is nothing else to wait for). Raises whatever
+    ``gmsh.fltk.initialize`` raises when there is no display.
 
     Returns the result of the last check or repair run from the loop, or None.
     """
@@ -415,6 +421,11 @@ def event_loop(*, auto_action: str | None = None, screenshot: str | None = None,
     pending = ACTIONS[auto_action] if auto_action else None
     if pending:
         gmsh.onelab.setString("ONELAB/Action", [pending])
+    elif screenshot:  # the picture of the model as opened, then done
+        gmsh.fltk.wait(0.05)
+        gmsh.graphics.draw()
+        gmsh.write(screenshot)
+        return _LAST["result"]
     while gmsh.fltk.isAvailable():
         current = gmsh.onelab.getString("ONELAB/Action")
         current = current[0] if len(current) else ""

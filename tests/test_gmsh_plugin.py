@@ -142,11 +142,12 @@ def test_views_hold_the_results_per_element_tag(session, demo):
     _, etags = _load_scrambled(P, H, seed=1)
     result = gmsh_plugin.check_model()
     views = result.extra["gmsh_views"]
-    assert set(views) == {"min_det", "status", "argmin"}
+    assert set(views) == {"min_det", "status", "argmin", "inside_only", "key"}
     assert gm.hexsos_views() == views
     names = {k: gmsh.option.getString(f"View[{gmsh.view.getIndex(t)}].Name") for k, t in views.items()}
     assert names == {"min_det": "hexsos: min det J", "status": "hexsos: status",
-                     "argmin": "hexsos: where invalid elements fold"}
+                     "argmin": "hexsos: where invalid elements fold", "inside_only": "hexsos: invalid inside only",
+                     "key": "hexsos: key"}
 
     for key, expected in (("min_det", ref.min_det), ("status", ref.status.astype(float))):
         dtype, tags, data, _, ncomp = gmsh.view.getHomogeneousModelData(views[key], 0)
@@ -175,7 +176,7 @@ def test_checking_again_replaces_the_views(session, demo):
     second = gmsh_plugin.check_model().extra["gmsh_views"]
     assert second == first and len(gmsh.view.getTags()) == n_views
     gm.remove_views()
-    assert gm.hexsos_views() == {} and len(gmsh.view.getTags()) == n_views - 3
+    assert gm.hexsos_views() == {} and len(gmsh.view.getTags()) == n_views - 5
 
 
 def test_post_views_of_a_kernel_result(session):
@@ -375,7 +376,7 @@ def test_panel_check_button(session, demo):
         c["hexes"], c["invalid"], c["invalid_inside_only"], c["undecided"])
     assert r["min_det"] == pytest.approx(float(ref.min_det.min()), abs=1e-12)
     assert f"{c['cells']} hexahedron ({c['invalid']} invalid, 1 inside only)" in r["message"]
-    assert set(gm.hexsos_views()) == {"min_det", "status", "argmin"}
+    assert set(gm.hexsos_views()) == {"min_det", "status", "argmin", "inside_only", "key"}
     assert panel.last_result().counts() == c
     # unrelated actions are left alone and keep the loop going
     assert _press("check") is True and _results()["invalid"] == c["invalid"]
@@ -811,3 +812,142 @@ def test_safe_step_model_from_a_view_and_from_arrays(session):
     assert min(got.values()) == r.t and max(got.values()) == 1.0
     with pytest.raises(gm.GmshModelError, match="shape"):
         gmsh_plugin.safe_step_model(np.zeros((3, 3)))
+
+
+# --- what a user of the Gmsh door sees (issue: screenshot, order-3 message, status key, panel labels) -----------
+
+@pytest.mark.skipif(shutil.which("xvfb-run") is None, reason=NO_XVFB)
+def test_screenshot_without_auto_action_is_the_opened_model_and_ends_by_itself(tmp_path):
+    import signal
+
+    shot = tmp_path / "opened.png"
+    proc = subprocess.Popen(["xvfb-run", "-a", sys.executable, "-m", "gmsh_plugin", "--demo", "--screenshot",
+                             str(shot)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            env=_env(display=True), cwd=str(tmp_path), start_new_session=True)
+    try:
+        out, err = proc.communicate(timeout=90)
+    except subprocess.TimeoutExpired:  # waits for an action that never comes: end it, Xvfb included
+        os.killpg(proc.pid, signal.SIGKILL)
+        proc.communicate()
+        pytest.fail("hexsos gmsh --screenshot without --auto-action did not end by itself within 90 s")
+    proc = subprocess.CompletedProcess(proc.args, proc.returncode, out, err)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    assert "no display" not in proc.stderr and f"wrote {shot}" in proc.stdout
+    img = _screenshot_rgb(shot)
+    mesh = np.abs(img - img[-1, -1]).max(axis=2) > 40  # Gmsh's mesh lines on its light background
+    assert mesh.mean() > 0.02 and _red_pixels(img) == 0  # the model as opened: nothing checked, nothing red
+
+
+def test_an_order_3_mesh_is_named_as_such_not_sent_back_to_meshing(tmp_path):
+    path = tmp_path / "order3.msh"
+    gmsh.initialize(readConfigFiles=False)
+    try:
+        gmsh.option.setNumber("General.Terminal", 0)
+        gmsh.model.add("o3")
+        gmsh.model.occ.addBox(0, 0, 0, 1, 1, 1)
+        gmsh.model.occ.synchronize()
+        gmsh.option.setNumber("Mesh.MeshSizeMax", 0.7)
+        gmsh.model.mesh.generate(3)
+        gmsh.model.mesh.setOrder(3)
+        assert len(gmsh.model.mesh.getElementTypes(3)) == 1
+        gmsh.write(str(path))
+    finally:
+        gmsh.finalize()
+    proc = subprocess.run([sys.executable, "-m", "gmsh_plugin", str(path), "-nopopup"], capture_output=True,
+                          text=True, env=_env(), cwd=str(tmp_path), timeout=120)
+    assert proc.returncode == 2, proc.stdout + proc.stderr
+    (line,) = proc.stderr.strip().splitlines()
+    assert "order 1 and 2" in line and "Tetrahedron 20" in line and "mesh it in 3-D first" not in line, line
+
+
+def test_status_views_colour_inside_only_apart_and_carry_a_key(demo):
+    P, H, info, ref = demo
+    c = ref.counts()
+    gmsh.initialize(readConfigFiles=False)
+    try:
+        gmsh.option.setNumber("General.Terminal", 0)
+        _, etags = gm.add_hex_mesh(P, H)
+        result = gmsh_plugin.check_model()
+        views = result.extra["gmsh_views"]
+        assert {"status", "inside_only", "key"} <= set(views)
+        _, tags, data, _, _ = gmsh.view.getHomogeneousModelData(views["inside_only"], 0)
+        assert np.asarray(tags).tolist() == [int(etags[info["inside_only_hex"]])]
+        assert gmsh.view.option.getNumber(views["status"], "ShowScale") == 0  # no bare -1..0 bar
+        # the key names the colours with the counts
+        (text,) = [s for s in _strings(views["key"]) if "invalid" in s]
+        assert f"{c['invalid']} invalid (dark red)" in text and f"{c['invalid_inside_only']} of them inside only" \
+            in text and f"{c['undecided']} undecided" in text
+        # re-posting replaces the views instead of piling them up
+        gmsh_plugin.check_model()
+        assert len(gmsh.view.getTags()) == len(gm.hexsos_views()) == 5
+    finally:
+        gmsh.finalize()
+
+
+def _strings(tag):
+    _, strings, _ = gmsh.view.getListDataStrings(tag, 2)
+    return list(strings)
+
+
+def _magenta_pixels(img):
+    r, g, b = img[..., 0], img[..., 1], img[..., 2]
+    return int(((r > 150) & (b > 150) & (g < 90)).sum())
+
+
+@pytest.mark.skipif(shutil.which("xvfb-run") is None, reason=NO_XVFB)
+def test_gui_picture_shows_the_inside_only_hex_in_magenta_and_the_key(demo_msh, tmp_path):
+    proc, img = _gui_run(demo_msh, tmp_path, "check")
+    assert _magenta_pixels(img) > 30 and _red_pixels(img) > 200, (_magenta_pixels(img), _red_pixels(img))
+    top = np.abs(img[:40, :300] - img[60, 5]).max(axis=2) > 100  # the key's text at the top left
+    assert top.sum() > 200
+
+
+PANEL_SCRIPT = r'''
+import os, sys
+import gmsh
+from PIL import ImageGrab
+from gmsh_plugin import panel, __main__ as door
+gmsh.initialize(readConfigFiles=False)
+gmsh.option.setNumber("General.Terminal", 0)
+door._open(gmsh, door.build_parser().parse_args(["--demo"]))
+panel.widen_menu()
+gmsh.fltk.initialize()
+panel.define_parameters()
+gmsh.fltk.openTreeItem("hexsos")
+panel.handle_action(panel.ACTION_CHECK)
+for _ in range(20):
+    gmsh.fltk.wait(0.05)
+ImageGrab.grab(xdisplay=os.environ["DISPLAY"]).save(sys.argv[1])
+gmsh.finalize()
+'''
+
+
+def _labels_cut(png):
+    """Rows of the tree (left pane) where text reaches its right edge, the scrollbar: a label cut off."""
+    img = _screenshot_rgb(png)
+    white = (img == 255).all(axis=2)
+    half = img.shape[1] // 2
+    edge = white[:, :half] & ~white[:, 1:half + 1]
+    xw = int(np.argmax(edge.sum(axis=0)))  # the last white column of the tree
+    bar = img[:, xw + 4]
+    grey = (bar[:, 0] == bar[:, 1]) & (bar[:, 1] == bar[:, 2]) & (bar[:, 0] > 100) & (bar[:, 0] < 230)
+    rows = np.flatnonzero(white[:, xw] & grey)
+    dark = img.max(axis=2) < 140
+    assert rows.size > 200, "the tree was not found in the screenshot"
+    return [int(y) for y in range(rows.min(), rows.max() + 1) if grey[y] and dark[y, xw - 3: xw + 1].any()]
+
+
+@pytest.mark.skipif(shutil.which("xvfb-run") is None, reason=NO_XVFB)
+def test_panel_labels_fit_and_the_method_comes_before_the_papers_parameters(tmp_path):
+    pytest.importorskip("PIL.ImageGrab")
+    script, shot = tmp_path / "panel.py", tmp_path / "panel.png"
+    script.write_text(PANEL_SCRIPT)
+    proc = subprocess.run(["xvfb-run", "-a", "-s", "-screen 0 1600x1000x24", sys.executable, str(script), str(shot)],
+                          capture_output=True, text=True, env=_env(display=True), cwd=str(tmp_path), timeout=90)
+    assert proc.returncode == 0 and shot.exists(), proc.stderr
+    assert _labels_cut(shot) == []
+    # ONELAB sorts by name: every repair's parameters, then the paper's own (rho, margin)
+    order = sorted([panel.P_METHOD, panel.P_RELAXATION, panel.P_REPAIR_METHOD, panel.P_BOUNDARY, panel.P_MIN_SJ,
+                    panel.P_PIN, panel.P_MAX_ITER, panel.P_RHO, panel.P_MARGIN])
+    assert order[0] == panel.P_METHOD and order[2] == panel.P_REPAIR_METHOD and order[-2:] == [panel.P_RHO,
+                                                                                              panel.P_MARGIN]
