@@ -308,3 +308,69 @@ def test_print_env_names_the_manual_fallback(capsys, tmp_path, monkeypatch):
     assert f"export PV_PLUGIN_PATH={folder}" in out
     assert "export HEXSOS_PYTHONPATH=" + os.pathsep.join(cli_doors.environment_paths()) in out
     assert os.path.join(folder, "paraview_compat") in out
+
+
+def _children(pid):
+    try:
+        with open(f"/proc/{pid}/task/{pid}/children") as fh:
+            return [int(c) for c in fh.read().split()]
+    except OSError:
+        return []
+
+
+def _alive(pid):
+    try:
+        with open(f"/proc/{pid}/stat") as fh:
+            return fh.read().split(")")[-1].split()[0] != "Z"
+    except OSError:
+        return False
+
+
+@pytest.mark.skipif(shutil.which("paraview") is None or shutil.which("Xvfb") is None or not sys.platform.startswith(
+    "linux"), reason="needs ParaView, Xvfb and /proc")
+def test_stopping_hexsos_paraview_stops_its_paraview(tmp_path):
+    """SIGTERM to ``hexsos paraview`` (a session closed, a job cancelled) closes the ParaView it started."""
+    import signal
+    import time
+
+    mesh, _ = damaged_mesh(tmp_path / "m.vtu")
+    read_end, write_end = os.pipe()
+    xvfb = subprocess.Popen(["Xvfb", "-displayfd", str(write_end), "-screen", "0", "1280x1024x24", "-nolisten", "tcp"],
+                            pass_fds=(write_end,), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    os.close(write_end)
+    display = b""
+    while not display.endswith(b"\n"):
+        chunk = os.read(read_end, 16)
+        if not chunk:
+            break
+        display += chunk
+    os.close(read_end)
+    env = clean_env(tmp_path, DISPLAY=":" + display.decode().strip(), PYTHONPATH=ROOT)
+    log = open(tmp_path / "door.log", "w+")  # a file, not a pipe: ParaView inherits it and may outlive us
+    door = subprocess.Popen(HEXSOS + ["paraview", mesh], cwd=tmp_path, env=env, stdout=log, stderr=log)
+    paraview = None
+    try:
+        deadline = time.monotonic() + 120
+        while paraview is None and time.monotonic() < deadline and door.poll() is None:
+            found = [c for c in _children(door.pid) if os.path.basename(os.readlink(f"/proc/{c}/exe")) == "paraview"]
+            paraview = found[0] if found else None
+            time.sleep(0.2)
+        assert paraview is not None, "hexsos paraview did not start ParaView"
+        time.sleep(3)  # ParaView up (its window, the start-up script)
+        door.send_signal(signal.SIGTERM)
+        door.wait(timeout=60)
+        err = (tmp_path / "door.log").read_text()
+        deadline = time.monotonic() + 30
+        while _alive(paraview) and time.monotonic() < deadline:
+            time.sleep(0.2)
+        assert not _alive(paraview), "ParaView is still running after hexsos paraview was stopped"
+        assert door.returncode == 128 + signal.SIGTERM and "stopped by SIGTERM" in err, err
+    finally:
+        if door.poll() is None:
+            door.kill()
+            door.wait()
+        if paraview is not None and _alive(paraview):
+            os.kill(paraview, signal.SIGKILL)
+        xvfb.terminate()
+        xvfb.wait(timeout=30)
+        log.close()

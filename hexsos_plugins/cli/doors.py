@@ -467,9 +467,12 @@ def _cmd_paraview(args) -> int:
         else:
             command = [paraview, f"--script={startup}"]
         try:
-            rc = subprocess.run(command, env=env, check=False).returncode
+            rc = _run_child(command, env)
         except OSError as exc:
             raise DependencyError(f"could not start {command[0]}: {exc.strerror or exc}") from None
+        except _Stopped as stop:  # SIGTERM / SIGHUP: ParaView was closed with us
+            sys.stderr.write(f"hexsos: stopped by {stop.name}; {os.path.basename(command[0])} closed\n")
+            return 128 + stop.signum
         report = None
         try:
             with open(status, encoding="utf-8") as fh:
@@ -479,6 +482,57 @@ def _cmd_paraview(args) -> int:
     finally:
         shutil.rmtree(workdir, ignore_errors=True)
     return _finish(args, report, rc, command[0], converted)
+
+
+class _Stopped(Exception):
+    """This process was asked to stop (SIGTERM, SIGHUP) while ParaView ran."""
+
+    def __init__(self, signum: int):
+        import signal
+
+        super().__init__(signum)
+        self.signum = int(signum)
+        self.name = signal.Signals(signum).name
+
+
+def _stop_child(proc, grace: float = 10.0) -> None:
+    """End ``proc``: SIGTERM, then SIGKILL after ``grace`` seconds."""
+    if proc.poll() is not None:
+        return
+    proc.terminate()
+    try:
+        proc.wait(timeout=grace)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.wait()
+
+
+def _run_child(command, env) -> int:
+    """Run ParaView (or pvpython) to its end and return its exit code; if this process is stopped meanwhile
+    (SIGTERM, SIGHUP, Ctrl-C), the child is stopped too instead of being left running (SIGTERM / SIGHUP then
+    raise :class:`_Stopped`, Ctrl-C KeyboardInterrupt)."""
+    import signal
+    import threading
+
+    proc = subprocess.Popen(command, env=env)
+
+    def stop(signum, frame):  # runs inside proc.wait(), which holds the Popen's lock: only signal, wait below
+        proc.send_signal(signal.SIGTERM)
+        raise _Stopped(signum)
+
+    handled = {}
+    if threading.current_thread() is threading.main_thread():
+        for sig in (signal.SIGTERM, getattr(signal, "SIGHUP", None)):
+            if sig is not None:
+                handled[sig] = signal.signal(sig, stop)
+    try:
+        return proc.wait()
+    except BaseException:
+        _stop_child(proc)
+        raise
+    finally:
+        for sig, old in handled.items():
+            signal.signal(sig, old)
 
 
 def _finish(args, report, rc, exe, converted) -> int:
