@@ -60,12 +60,51 @@ def _grid(pv, points, blocks):
     return pv.UnstructuredGrid(np.concatenate(parts), np.concatenate(types), np.asarray(points, float))
 
 
+#: Most insets a screenshot shows (the largest clusters of cells not proven valid; every cluster is framed).
+MAX_INSETS = 3
+
+
+def bad_clusters(points, blocks, result, h: float) -> list:
+    """The cells not proven valid, grouped in clusters of cells whose centres lie within 3 ``h`` (the median
+    edge) of each other: ``[ids, ...]``, largest first."""
+    from scipy.sparse.csgraph import connected_components
+    from scipy.spatial import cKDTree
+
+    bad = np.flatnonzero(np.asarray(result.status) != 1)
+    if bad.size == 0:
+        return []
+    conn = np.concatenate([np.pad(c, ((0, 0), (0, 27 - c.shape[1])), constant_values=-1) for _, c in blocks])[bad]
+    pts = np.where(conn[..., None] >= 0, points[np.maximum(conn, 0)], np.nan)
+    centres = np.nanmean(pts, axis=1)
+    if bad.size == 1:
+        return [bad]
+    pairs = cKDTree(centres).query_pairs(3.0 * h, output_type="ndarray")
+    from scipy.sparse import coo_matrix
+
+    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(bad.size, bad.size))
+    _, label = connected_components(graph, directed=False)
+    groups = [bad[label == k] for k in range(label.max() + 1)]
+    return sorted(groups, key=lambda g: (-g.size, int(g[0])))
+
+
+def _cluster_box(grid_points, pv, grid, ids, least: float):
+    """The bounds of the cells ``ids``, grown to at least ``least`` per side around their centre."""
+    b = np.asarray(grid.extract_cells(ids).bounds, dtype=float).reshape(3, 2)
+    centre, half = b.mean(axis=1), np.maximum((b[:, 1] - b[:, 0]) / 2 * 1.3, least / 2)
+    return np.column_stack([centre - half, centre + half]).ravel()
+
+
 def screenshot(points, cells, result, path, *, window_size=(1400, 1000), title: str | None = None) -> str:
     """Render the mesh off-screen to a PNG.
 
     Valid cells are drawn translucent, coloured by :func:`relative_min_det`; invalid cells opaque (red: a
     corner check would see it too; magenta: invalid inside only, valid at all corners), undecided yellow;
     each invalid cell's minimum location x(argmin) is a black sphere.
+
+    However small the cells not proven valid are beside the whole mesh, they are seen: each cluster of them
+    (:func:`bad_clusters`) smaller than a tenth of the mesh's diagonal is framed in the main view by a box of at
+    least 6% of the diagonal, and the largest of those (up to :data:`MAX_INSETS`) get an inset of their own on
+    the right, zoomed on the cluster and its neighbours, numbered as their frames.
 
     Parameters
     ----------
@@ -84,39 +123,52 @@ def screenshot(points, cells, result, path, *, window_size=(1400, 1000), title: 
     grid.cell_data["min det J / scale"] = rel
     edges = np.concatenate([np.linalg.norm(points[c[:, 1]] - points[c[:, 0]], axis=1) for _, c in blocks])
     h = float(np.median(edges)) or 1.0
+    diag = float(np.linalg.norm(np.ptp(points[np.unique(np.concatenate([c.ravel() for _, c in blocks]))], axis=0)))
+    diag = diag or h
 
-    p = pv.Plotter(off_screen=True, window_size=list(window_size))
+    # clusters too small to be seen at the mesh's scale (under a tenth of its diagonal): framed, and insets
+    # for the largest of them
+    clusters = [ids for ids in bad_clusters(points, blocks, result, h)
+                if np.linalg.norm(np.ptp(np.asarray(grid.extract_cells(ids).bounds).reshape(3, 2), axis=1))
+                < 0.1 * diag]
+    boxes = [_cluster_box(points, pv, grid, ids, 0.06 * diag) for ids in clusters]
+    zoomed = list(range(min(len(clusters), MAX_INSETS)))
+    shape = f"1|{len(zoomed)}" if zoomed else (1, 1)
+    kwargs = {"splitting_position": 0.72} if zoomed else {}
+    p = pv.Plotter(off_screen=True, window_size=list(window_size), shape=shape, border=bool(zoomed), **kwargs)
     p.set_background("white")
-    valid = np.flatnonzero(result.status == 1)
-    if valid.size:
-        with warnings.catch_warnings():  # pyvista 0.49 announces a change of extract_surface's default
-            warnings.simplefilter("ignore")
-            surface = grid.extract_cells(valid).extract_surface()
-        p.add_mesh(surface, scalars="min det J / scale", cmap="viridis",
-                   clim=(min(0.0, float(rel.min())), 1.0), opacity=0.25, show_edges=True, edge_color="gray",
-                   scalar_bar_args={"title": "relative min det J", "color": "black", "vertical": True})
-    inside = np.flatnonzero(result.invalid_inside_only)
-    corner = np.flatnonzero(result.invalid & ~result.invalid_inside_only)
-    undecided = np.flatnonzero(result.status == -1)
-    for ids, color, opacity, label in ((corner, "red", 0.55, f"invalid ({corner.size})"),
-                                       (inside, "magenta", 1.0, f"invalid inside only ({inside.size})"),
-                                       (undecided, "gold", 0.8, f"undecided ({undecided.size})")):
-        if ids.size:
-            p.add_mesh(grid.extract_cells(ids), color=color, opacity=opacity, show_edges=True, edge_color="black",
-                       line_width=2, label=label)
-    bad = np.flatnonzero(result.status != 1)
-    if bad.size:  # (then at least one labelled item exists for the legend)
-        from .cells.elements import world_points
-
-        where = world_points(points, blocks, result.argmin)[bad]
-        p.add_mesh(pv.PolyData(where).glyph(geom=pv.Sphere(radius=0.18 * h), scale=False, orient=False),
-                   color="black", label="where det J is smallest")
-        p.add_legend(bcolor="white", face="rectangle", size=(0.28, 0.16), loc="upper left")
+    if zoomed:
+        p.subplot(0)
+    _draw(pv, p, grid, points, blocks, result, rel, h, legend=True)
+    for k, (ids, bx) in enumerate(zip(clusters, boxes)):
+        colour = "magenta" if np.asarray(result.invalid_inside_only)[ids].all() else \
+            "red" if np.asarray(result.invalid)[ids].any() else "gold"
+        p.add_mesh(pv.Box(bounds=bx).extract_all_edges(), color=colour, line_width=3)
+        if k in zoomed:
+            p.add_point_labels(np.asarray(bx[1::2])[None], [str(zoomed.index(k) + 1)], font_size=16,
+                               text_color="black", shape_color="white", point_size=1, always_visible=True)
     c = result.counts()
     p.add_text(title or f"{c['cells']} cells: {c['invalid']} invalid ({c['invalid_inside_only']} inside only), "
                f"{c['undecided']} undecided", font_size=11, color="black", position="lower_left")
     p.view_isometric()
     p.reset_camera()
+    for j, k in enumerate(zoomed):
+        p.subplot(j + 1)
+        p.set_background("white")
+        ids = clusters[k]
+        own = np.asarray(grid.extract_cells(ids).bounds, dtype=float)  # the cluster and a ring of cells around it
+        lo, hi = own[::2] - 1.5 * h, own[1::2] + 1.5 * h
+        centres = grid.cell_centers().points
+        near = np.flatnonzero(np.all((centres >= lo) & (centres <= hi), axis=1))
+        sub = grid.extract_cells(near)
+        sub_result_ids = near
+        _draw(pv, p, sub, points, blocks, result, rel, h, only=sub_result_ids)
+        n_inv = int(np.asarray(result.invalid)[ids].sum())
+        n_und = int((np.asarray(result.status)[ids] == -1).sum())
+        p.add_text(f"{j + 1}: {n_inv} invalid" + (f", {n_und} undecided" if n_und else ""), font_size=10,
+                   color="black", position="upper_left")
+        p.view_isometric()
+        p.reset_camera(bounds=tuple(np.column_stack([lo, hi]).ravel()))
     path = os.fspath(path)
     try:
         p.screenshot(path)
@@ -125,6 +177,45 @@ def screenshot(points, cells, result, path, *, window_size=(1400, 1000), title: 
     finally:
         p.close()
     return path
+
+
+def _draw(pv, p, grid, points, blocks, result, rel, h, *, legend=False, only=None):
+    """The cells of ``grid`` (all the result's cells, or the result's cells ``only`` in that order) on the
+    current renderer of ``p``: valid translucent, the others opaque by kind, spheres at the argmin points."""
+    ids_all = np.arange(len(result)) if only is None else np.asarray(only)
+    status = np.asarray(result.status)[ids_all]
+    inside_all = np.asarray(result.invalid_inside_only)[ids_all]
+    invalid_all = np.asarray(result.invalid)[ids_all]
+    local_rel = rel[ids_all]
+    valid = np.flatnonzero(status == 1)
+    if valid.size:
+        with warnings.catch_warnings():  # pyvista 0.49 announces a change of extract_surface's default
+            warnings.simplefilter("ignore")
+            surface = grid.extract_cells(valid).extract_surface()
+        kw = {"scalar_bar_args": {"title": "relative min det J", "color": "black", "vertical": True,
+                                  "position_x": 0.84, "position_y": 0.08, "width": 0.06, "height": 0.45,
+                                  "title_font_size": 14, "label_font_size": 12}} if legend \
+            else {"show_scalar_bar": False}
+        p.add_mesh(surface, scalars="min det J / scale", cmap="viridis",
+                   clim=(min(0.0, float(rel.min())), 1.0), opacity=0.25, show_edges=True, edge_color="gray", **kw)
+    inside = np.flatnonzero(inside_all)
+    corner = np.flatnonzero(invalid_all & ~inside_all)
+    undecided = np.flatnonzero(status == -1)
+    for ids, color, opacity, label in ((corner, "red", 0.55, f"invalid ({corner.size})"),
+                                       (inside, "magenta", 1.0, f"invalid inside only ({inside.size})"),
+                                       (undecided, "gold", 0.8, f"undecided ({undecided.size})")):
+        if ids.size:
+            p.add_mesh(grid.extract_cells(ids), color=color, opacity=opacity, show_edges=True, edge_color="black",
+                       line_width=2, label=label if legend else None)
+    bad = np.flatnonzero(status != 1)
+    if bad.size:
+        from .cells.elements import world_points
+
+        where = world_points(points, blocks, np.asarray(result.argmin))[ids_all[bad]]
+        p.add_mesh(pv.PolyData(where).glyph(geom=pv.Sphere(radius=0.18 * h), scale=False, orient=False),
+                   color="black", label="where det J is smallest" if legend else None)
+        if legend:
+            p.add_legend(bcolor="white", face="rectangle", size=(0.28, 0.16), loc="upper left")
 
 
 def histogram(result, path, *, title: str | None = None, bins: int = 60) -> str:

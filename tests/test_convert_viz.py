@@ -133,3 +133,61 @@ def test_check_writes_both_pictures(demo, tmp_path, capsys):
                      str(tmp_path / "h.png")]) == 1
     out = capsys.readouterr().out
     assert "wrote" in out and (tmp_path / "s.png").stat().st_size > 10000 and (tmp_path / "h.png").exists()
+
+
+def _slab(nx, ny, nz):
+    """A flat plate of nx * ny * nz unit hexes (VTK order)."""
+    x, y, z = np.arange(nx + 1.0), np.arange(ny + 1.0), np.arange(nz + 1.0)
+    Z, Y, X = np.meshgrid(z, y, x, indexing="ij")
+    P = np.column_stack([X.ravel(), Y.ravel(), Z.ravel()])
+    c = np.arange(P.shape[0]).reshape(nz + 1, ny + 1, nx + 1)[:-1, :-1, :-1]
+    s, t = nx + 1, (nx + 1) * (ny + 1)
+    H = np.stack([c, c + 1, c + s + 1, c + s, c + t, c + t + 1, c + t + s + 1, c + t + s], -1).reshape(-1, 8)
+    return P, H
+
+
+def _bad_colour(img):
+    r, g, b = img[..., 0], img[..., 1], img[..., 2]
+    return (r > 100) & (r > 2 * g) & (r > 2 * b)
+
+
+def test_a_screenshot_of_a_big_mesh_shows_its_one_bad_hex(tmp_path):
+    """20,000 hexes, one vertex pushed through a neighbour: the few invalid hexes are a few pixels at the mesh's
+    scale; the picture frames them and zooms on them in an inset."""
+    pytest.importorskip("pyvista")
+    from PIL import Image
+
+    from hexsos_plugins import viz
+
+    P, H = _slab(100, 100, 2)
+    k = np.flatnonzero(np.all(P == [30, 60, 1], axis=1))[0]
+    P[k, 2] += 1.6  # through the top layer
+    r = hs.check(P, H)
+    assert 1 <= r.counts()["invalid"] <= 8
+    out = viz.screenshot(P, H, r, tmp_path / "big.png")
+    img = np.asarray(Image.open(out).convert("RGB")).astype(int)
+    h, w = img.shape[:2]
+    bad = _bad_colour(img)
+    bad[: int(0.2 * h), : int(0.32 * w)] = False  # the legend (its red text and swatch)
+    inset = bad[:, int(0.75 * w):]
+    assert inset.sum() > 800, inset.sum()  # the zoomed bad hexes
+    assert bad[:, : int(0.72 * w)].sum() > 600, bad[:, : int(0.72 * w)].sum()  # the frame in the main view
+    # a mesh with every cell valid has neither frames nor insets
+    P2, H2 = _slab(100, 100, 2)
+    r2 = hs.check(P2, H2)
+    img2 = np.asarray(Image.open(viz.screenshot(P2, H2, r2, tmp_path / "valid.png")).convert("RGB")).astype(int)
+    assert _bad_colour(img2).sum() == 0
+
+
+def test_bad_cells_are_grouped_in_clusters():
+    from hexsos_plugins import viz
+    from hexsos_plugins.viz import _blocks
+
+    P, H = _slab(40, 10, 1)
+    for x in (5, 30):  # two separate folds, far apart
+        k = np.flatnonzero(np.all(P == [x, 5, 1], axis=1))[0]
+        P[k, 2] -= 1.6
+    r = hs.check(P, H)
+    clusters = viz.bad_clusters(P, _blocks(H), r, 1.0)
+    assert len(clusters) == 2 and sum(len(c) for c in clusters) == r.counts()["invalid"]
+    assert all(np.all(r.status[c] != 1) for c in clusters)
