@@ -87,7 +87,7 @@ def bad_clusters(points, blocks, result, h: float) -> list:
     return sorted(groups, key=lambda g: (-g.size, int(g[0])))
 
 
-def _cluster_box(grid_points, pv, grid, ids, least: float):
+def _cluster_box(grid, ids, least: float):
     """The bounds of the cells ``ids``, grown to at least ``least`` per side around their centre."""
     b = np.asarray(grid.extract_cells(ids).bounds, dtype=float).reshape(3, 2)
     centre, half = b.mean(axis=1), np.maximum((b[:, 1] - b[:, 0]) / 2 * 1.3, least / 2)
@@ -131,7 +131,7 @@ def screenshot(points, cells, result, path, *, window_size=(1400, 1000), title: 
     clusters = [ids for ids in bad_clusters(points, blocks, result, h)
                 if np.linalg.norm(np.ptp(np.asarray(grid.extract_cells(ids).bounds).reshape(3, 2), axis=1))
                 < 0.1 * diag]
-    boxes = [_cluster_box(points, pv, grid, ids, 0.06 * diag) for ids in clusters]
+    boxes = [_cluster_box(grid, ids, 0.06 * diag) for ids in clusters]
     zoomed = list(range(min(len(clusters), MAX_INSETS)))
     shape = f"1|{len(zoomed)}" if zoomed else (1, 1)
     kwargs = {"splitting_position": 0.72} if zoomed else {}
@@ -160,9 +160,7 @@ def screenshot(points, cells, result, path, *, window_size=(1400, 1000), title: 
         lo, hi = own[::2] - 1.5 * h, own[1::2] + 1.5 * h
         centres = grid.cell_centers().points
         near = np.flatnonzero(np.all((centres >= lo) & (centres <= hi), axis=1))
-        sub = grid.extract_cells(near)
-        sub_result_ids = near
-        _draw(pv, p, sub, points, blocks, result, rel, h, only=sub_result_ids)
+        _draw(pv, p, grid.extract_cells(near), points, blocks, result, rel, h, only=near)
         n_inv = int(np.asarray(result.invalid)[ids].sum())
         n_und = int((np.asarray(result.status)[ids] == -1).sum())
         p.add_text(f"{j + 1}: {n_inv} invalid" + (f", {n_und} undecided" if n_und else ""), font_size=10,
@@ -186,7 +184,6 @@ def _draw(pv, p, grid, points, blocks, result, rel, h, *, legend=False, only=Non
     status = np.asarray(result.status)[ids_all]
     inside_all = np.asarray(result.invalid_inside_only)[ids_all]
     invalid_all = np.asarray(result.invalid)[ids_all]
-    local_rel = rel[ids_all]
     valid = np.flatnonzero(status == 1)
     if valid.size:
         with warnings.catch_warnings():  # pyvista 0.49 announces a change of extract_surface's default
