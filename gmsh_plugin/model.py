@@ -437,7 +437,7 @@ def _colour_table(tag: int, colours) -> None:
     import os
     import tempfile
 
-    gmsh = _gmsh()
+    gmsh = gmsh_api()
     table = ", ".join("{%d, %d, %d}" % tuple(int(v) for v in rgb) for rgb in colours)
     fd, path = tempfile.mkstemp(suffix=".geo", prefix="hexsos-colours-")
     try:
@@ -464,7 +464,7 @@ def post_displacement(node_tags, displacement, *, model: str | None = None) -> i
 
 def _empty(tag: int) -> bool:
     """A view posted with no data (list data of no element)."""
-    gmsh = _gmsh()
+    gmsh = gmsh_api()
     try:
         _, counts, _ = gmsh.view.getListData(tag)
     except Exception:  # a model-based view

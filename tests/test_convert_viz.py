@@ -181,13 +181,12 @@ def test_a_screenshot_of_a_big_mesh_shows_its_one_bad_hex(tmp_path):
 
 def test_bad_cells_are_grouped_in_clusters():
     from hexsos_plugins import viz
-    from hexsos_plugins.viz import _blocks
 
     P, H = _slab(40, 10, 1)
     for x in (5, 30):  # two separate folds, far apart
         k = np.flatnonzero(np.all(P == [x, 5, 1], axis=1))[0]
         P[k, 2] -= 1.6
     r = hs.check(P, H)
-    clusters = viz.bad_clusters(P, _blocks(H), r, 1.0)
+    clusters = viz.bad_clusters(P, [("hexahedron", H)], r, 1.0)
     assert len(clusters) == 2 and sum(len(c) for c in clusters) == r.counts()["invalid"]
     assert all(np.all(r.status[c] != 1) for c in clusters)

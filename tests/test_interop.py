@@ -184,12 +184,12 @@ def test_formats_without_arrays_name_what_they_drop(result_vtu, tmp_path, capsys
 # ---------------------------------------------------------------------------------------------- item 4
 def test_the_formats_extra_is_in_all_and_brings_what_meshio_needs():
     tomllib = pytest.importorskip("tomllib")  # Python 3.11+
-    from hexsos_plugins.readers._common import _FORMAT_PACKAGES
+    from hexsos_plugins.io.meshio_conventions import FORMAT_PACKAGES
 
     with open(os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "pyproject.toml"), "rb") as f:
         extras = tomllib.load(f)["project"]["optional-dependencies"]
     assert "formats" in extras["all"][0].split("[")[1]
-    assert {r.split(">")[0] for r in extras["formats"]} == set(_FORMAT_PACKAGES) == {"netCDF4", "h5py"}
+    assert {r.split(">")[0] for r in extras["formats"]} == set(FORMAT_PACKAGES) == {"netCDF4", "h5py"}
 
 
 @pytest.mark.parametrize("ext, package", [(".exo", "netCDF4"), (".xdmf", "h5py"), (".med", "h5py")])
@@ -277,7 +277,7 @@ End
 
 
 def test_medit_files_are_read_at_float64_whatever_the_version_line(tmp_path):
-    from hexsos_plugins.readers import readers_for
+    from hexsos_plugins.io import readers_for
 
     path = tmp_path / "v1.mesh"
     path.write_text(MEDIT_V1)
