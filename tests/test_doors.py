@@ -318,6 +318,14 @@ def _children(pid):
         return []
 
 
+def _exe(pid):
+    """The executable's name of a process, or None once it has ended."""
+    try:
+        return os.path.basename(os.readlink(f"/proc/{pid}/exe"))
+    except OSError:
+        return None
+
+
 def _alive(pid):
     try:
         with open(f"/proc/{pid}/stat") as fh:
@@ -352,7 +360,7 @@ def test_stopping_hexsos_paraview_stops_its_paraview(tmp_path):
     try:
         deadline = time.monotonic() + 120
         while paraview is None and time.monotonic() < deadline and door.poll() is None:
-            found = [c for c in _children(door.pid) if os.path.basename(os.readlink(f"/proc/{c}/exe")) == "paraview"]
+            found = [c for c in _children(door.pid) if _exe(c) == "paraview"]  # (pvpython is asked first)
             paraview = found[0] if found else None
             time.sleep(0.2)
         assert paraview is not None, "hexsos paraview did not start ParaView"
