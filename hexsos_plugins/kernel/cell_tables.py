@@ -257,7 +257,7 @@ def write_tables(path=TABLE_FILE) -> str:
         for f in TABLE_SCALARS:
             data[f"{name}/{f}"] = np.array(getattr(t, f))
     tmp = Path(path).with_suffix(".tmp.npz")
-    np.savez(tmp, **data)
+    np.savez_compressed(tmp, **data)  # (the high orders' child matrices are mostly zeros)
     os.replace(tmp, path)
     return str(path)
 
