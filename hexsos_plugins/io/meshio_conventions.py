@@ -16,6 +16,14 @@ in two places, measured against VTK 9.7's own shape functions and Gmsh 4.15's re
   ``gmsh_to_vtk`` on reading and its inverse before writing. (``tetra10``, ``wedge15``, ``hexahedron20`` and
   ``hexahedron27`` meshio permutes as the registry does.)
 
+Lagrange cells of orders 3-5: meshio names VTK's Lagrange cells by their VTK names (``VTK_LAGRANGE_TETRAHEDRON``,
+``_HEXAHEDRON``, ``_WEDGE``, whatever their node count) and Gmsh's by ``tetra20``, ``hexahedron64``, ``wedge40``,
+...; the registry uses the latter for both (its nodes in VTK's order, which is the Lagrange cells' order in a VTK
+file). :func:`fix_read_order` renames VTK's blocks to the registry's names by node count, :func:`fix_write_order`
+back. VTK 9.7 has no Lagrange pyramid class (``VTK_LAGRANGE_PYRAMID``, 74, is a type id only): a VTK file
+cannot hold a pyramid of order 3 or more; :data:`VTK_LINEAR_PYRAMID_FROM` says which types the writers reduce to
+their 5 corners (with a note).
+
 Imports the cells wing only; used by the readers and the writers alike.
 """
 
@@ -31,7 +39,20 @@ import numpy as np
 
 from ..cells.elements import ELEMENTS
 
-__all__ = ["quiet_meshio", "shorten", "DIMS", "meshio_dimensions", "WEDGE_SWAP", "fix_read_order", "fix_write_order"]
+__all__ = ["quiet_meshio", "shorten", "DIMS", "meshio_dimensions", "WEDGE_SWAP", "fix_read_order", "fix_write_order",
+           "VTK_LAGRANGE_NAMES", "VTK_LINEAR_PYRAMID_FROM"]
+
+#: meshio's names of VTK's Lagrange cells, by the registry's domain
+VTK_LAGRANGE_NAMES = {"tet": "VTK_LAGRANGE_TETRAHEDRON", "cube": "VTK_LAGRANGE_HEXAHEDRON",
+                      "prism": "VTK_LAGRANGE_WEDGE"}
+_FROM_VTK_LAGRANGE = {(VTK_LAGRANGE_NAMES[el.domain], el.n_nodes): name for name, el in ELEMENTS.items()
+                      if el.lagrange and el.domain in VTK_LAGRANGE_NAMES}
+_TO_VTK_LAGRANGE = {name: vtk for (vtk, _), name in _FROM_VTK_LAGRANGE.items()}
+# the Lagrange types whose VTK order is not Gmsh's (meshio permutes none of them)
+_LAGRANGE_G2V = {name: np.array(el.gmsh_to_vtk) for name, el in ELEMENTS.items()
+                 if el.order >= 3 and list(el.gmsh_to_vtk) != list(range(el.n_nodes))}
+#: The registry's pyramids a VTK file cannot hold (order >= 3): written as linear pyramids (their 5 corners).
+VTK_LINEAR_PYRAMID_FROM = tuple(name for name, el in ELEMENTS.items() if el.domain == "pyramid" and el.order >= 3)
 
 
 @contextlib.contextmanager
@@ -107,11 +128,27 @@ def meshio_dimensions(extra=()):
                 else DIMS.get(t, 2)
     for t, d in add.items():
         table[t] = d
+    # the registry's types meshio's Gmsh tables lack (pyramids of order >= 3): their Gmsh ids and node counts
+    from meshio._common import num_nodes_per_cell
+    from meshio.gmsh.common import _meshio_to_gmsh_type as to_gmsh
+
+    gadd = {name: el for name, el in ELEMENTS.items() if name not in to_gmsh and el.gmsh_type > 0}
+    nadd = {name: el.n_nodes for name, el in ELEMENTS.items() if name not in num_nodes_per_cell}
+    for name, el in gadd.items():
+        to_gmsh[name] = el.gmsh_type
+        table.setdefault(name, 3)
+    num_nodes_per_cell.update(nadd)
     try:
         yield
     finally:
         for t in add:
             table.pop(t, None)
+        for t in gadd:
+            to_gmsh.pop(t, None)
+            if t not in add:
+                table.pop(t, None)
+        for t in nadd:
+            num_nodes_per_cell.pop(t, None)
 
 
 
@@ -133,8 +170,14 @@ def fix_read_order(mesh: meshio.Mesh, fmt: str) -> meshio.Mesh:
     """Blocks of a mesh meshio just read as ``fmt``, in place, in VTK node order (see the module docstring)."""
     if fmt in _VTK_FORMATS:
         _permute(mesh, "wedge", WEDGE_SWAP)
+        for block in mesh.cells:
+            name = _FROM_VTK_LAGRANGE.get((block.type, np.shape(block.data)[1] if np.ndim(block.data) == 2 else -1))
+            if name is not None:
+                block.type = name
     elif fmt in _GMSH_FORMATS:
         _permute(mesh, "wedge18", WEDGE18_G2V)
+        for name, perm in _LAGRANGE_G2V.items():  # meshio keeps Gmsh's order for these
+            _permute(mesh, name, perm)
     return mesh
 
 
@@ -143,6 +186,10 @@ def fix_write_order(mesh: meshio.Mesh, fmt: str) -> meshio.Mesh:
     the file comes out in the format's own order."""
     if fmt in _VTK_FORMATS:
         _permute(mesh, "wedge", WEDGE_SWAP)
+        for block in mesh.cells:
+            block.type = _TO_VTK_LAGRANGE.get(block.type, block.type)
     elif fmt in _GMSH_FORMATS:
         _permute(mesh, "wedge18", WEDGE18_V2G)
+        for name, perm in _LAGRANGE_G2V.items():
+            _permute(mesh, name, np.argsort(perm))
     return mesh

@@ -42,6 +42,7 @@ import contextlib
 import os
 import re
 import tempfile
+from collections import Counter
 from pathlib import Path
 
 import meshio
@@ -51,7 +52,7 @@ from ..cells.elements import VOXEL_TO_VTK
 from ..errors import HexsosError, InvalidInputError, MeshWriteError
 from .mesh import Mesh, copy_block, copy_mesh
 from .formats import NO_WRITE, WRITE_ALIASES, WRITE_BY_EXT, ext_formats, few_exts, format_name, writer_formats
-from .meshio_conventions import fix_write_order, meshio_dimensions, quiet_meshio, shorten
+from .meshio_conventions import VTK_LINEAR_PYRAMID_FROM, fix_write_order, meshio_dimensions, quiet_meshio, shorten
 from .readers.tokens import Cursor
 
 __all__ = ["write"]
@@ -179,6 +180,8 @@ def _prepare(mesh: meshio.Mesh, fmt: str, notes: list):
     m = copy_mesh(mesh, cells=cells)
     if fmt in ("vtu", "vtk42", "vtk51", "vtk") and any(b.type == "pyramid14" for b in m.cells):
         _pyramid14_as_13(m, notes)
+    if fmt in ("vtu", "vtk42", "vtk51", "vtk") and any(b.type in VTK_LINEAR_PYRAMID_FROM for b in m.cells):
+        _high_order_pyramids_as_linear(m, notes)
     fix_write_order(m, fmt)
     if voxels:
         notes.append(f"{len(voxels)} voxel block(s) written as hexahedron blocks (VTK node order): "
@@ -204,6 +207,19 @@ def _prepare(mesh: meshio.Mesh, fmt: str, notes: list):
     elif fmt == "medit":
         _prepare_medit(m, notes)
     return m, kwargs, post
+
+
+def _high_order_pyramids_as_linear(m: meshio.Mesh, notes: list) -> None:
+    """VTK has no Lagrange pyramid (VTK 9.7): pyramids of order >= 3 are written as linear pyramids (their 5
+    corners, the first nodes in Gmsh's order as in VTK's), with a note; the cell arrays stay on them."""
+    n = Counter()
+    for b in m.cells:
+        if b.type in VTK_LINEAR_PYRAMID_FROM:
+            n[b.type] += len(b.data)
+            b.type, b.data = "pyramid", np.ascontiguousarray(np.asarray(b.data)[:, :5])
+    what = ", ".join(f"{k} {t}" for t, k in n.items())
+    notes.append(f"{what} cells written as linear pyramids (their 5 corners; VTK has no Lagrange pyramid): their "
+                 "other nodes are not in this file (write .msh to keep them)")
 
 
 def _pyramid14_as_13(m: meshio.Mesh, notes: list) -> None:
