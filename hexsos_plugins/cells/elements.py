@@ -18,6 +18,10 @@ wedge18        32     13     18      unit triangle times [0, 1]
 hexahedron     12     5      8       [0, 1]^3
 hexahedron20   25     17     20      [0, 1]^3
 hexahedron27   29     12     27      [0, 1]^3
+tetra20 .. 56  71     29-31  20-56   unit simplex (complete Lagrange, orders 3-5: :mod:`.lagrange`)
+hexahedron64.. 72     92-94  64-216  [0, 1]^3 (orders 3-5)
+wedge40 .. 126 73     90,91,106 40-126 unit triangle times [0, 1] (orders 3-5)
+pyramid30 ..91 --     118-120 30-91  the pyramid (orders 3-5, Bergot's space, Gmsh's node order)
 ============== ====== ====== ======= =========================================================
 
 ``voxel`` (VTK 11) is an axis-aligned hexahedron with its nodes in lexicographic order (x fastest); readers
