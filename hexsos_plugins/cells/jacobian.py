@@ -15,7 +15,14 @@ wedge           tri (1) x line (2)               9                     prism 3p 
 wedge15, 18     tri (4) x line (5)               90
 hexahedron      line (2)^3                       27                    hex 3p - 1
 hexahedron20,27 line (5)^3                       216
+tetra (order p) tet (3p - 3)                     84, 220, 455 (p=3-5)
+hexahedron (p)  line (3p - 1)^3                  729, 1728, 3375
+wedge (p)       tri (3p - 2) x line (3p - 1)     324, 792, 1575
+pyramid (p)     line (3p-1)^2 x line (3p-3)      567, 1440, 2925
 =============== ================================ ===================== ==============
+
+(orders 3-5: the complete Lagrange cells of :mod:`.lagrange`; their simplex factors of high degree are built by
+closed formulas, :func:`factor_tables`, not by inverting a Vandermonde matrix.)
 
 (exact degrees: e.g. for a linear wedge x_r, x_s are constant on the triangle and linear in t, x_t linear on
 the triangle and constant in t.) Every value on the element is a convex combination of the coefficients, so
