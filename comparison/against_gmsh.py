@@ -38,7 +38,7 @@ def gmsh_local(el, pcoords) -> np.ndarray:
 
 
 @contextlib.contextmanager
-def _gmsh_cells(points, cells, name):
+def gmsh_cells(points, cells, name):
     """A Gmsh model (one thread) holding the points and the cells, (cell_type, conn) pairs in VTK node order given
     to Gmsh in its own: yields (gmsh, element tags, each cell's gmsh_factor)."""
     from hexsos_plugins.cells.elements import ELEMENTS
@@ -68,7 +68,7 @@ def gmsh_qualities(points, cells, *, repeat: int = 1):
     ``cells``: an (M, 8) hex array or (cell_type, conn) pairs in VTK node order (given to Gmsh in its own)."""
     if not (isinstance(cells, (list, tuple)) and cells and isinstance(cells[0], (list, tuple))):
         cells = [("hexahedron", np.asarray(cells))]
-    with _gmsh_cells(points, cells, "comparison") as (gmsh, tags, factors):
+    with gmsh_cells(points, cells, "comparison") as (gmsh, tags, factors):
         best = np.inf
         for _ in range(repeat):
             t = time.perf_counter()
@@ -84,7 +84,7 @@ def gmsh_det_at(points, name, conn, pcoords):
     from hexsos_plugins.cells.elements import ELEMENTS
 
     local = gmsh_local(ELEMENTS[name], pcoords)
-    with _gmsh_cells(points, [(name, conn)], "det-at") as (gmsh, tags, factors):
+    with gmsh_cells(points, [(name, conn)], "det-at") as (gmsh, tags, factors):
         out = np.array([gmsh.model.mesh.getJacobian(int(tag), x.tolist())[1][0] for tag, x in zip(tags, local)])
         return out / factors
 

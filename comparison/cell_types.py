@@ -19,7 +19,8 @@ hexahedron27):
 * against dense sampling of det J (a subset) with VTK's ``InterpolateDerivs`` (quadratic pyramids: Gmsh's
   shape-function gradients, see :mod:`comparison.vtk_sampling`): the sampled minimum is never below our lower
   bound nor below our minimum, and a cell we call valid never samples <= 0;
-* throughput of both on the same cells in one process, one thread each.
+* throughput of both on the same cells in one process, one thread each;
+* the curved cells of orders 3-5 (tetrahedra, hexahedra, prisms, pyramids): :mod:`comparison.curved`.
 """
 
 from __future__ import annotations
@@ -217,6 +218,13 @@ def run(quick: bool = False, out="comparison-out", jobs: int = 1, *, size: str |
                 "Throughput on the same random cells in one process, one thread each (hexsos: the certified check with "
                 "argmin; Gmsh: minDetJac), best of 3."),
     ]
+    # the curved cells of orders 3-5 (comparison.curved): the same comparisons on random cells
+    from comparison import curved
+
+    cres = curved.run_sets(size)
+    summary[NAME]["curved"] = {"sets": cres, "sampled_below_lower": sum(s["sampled_below_lower"] for s in cres),
+                               "undecided": sum(s["undecided"] for s in cres)}
+    md.append(curved.tables_md(cres))
     return C.result(NAME, TITLE, summary, "\n".join(md) + "\n", [], t0)
 
 

@@ -136,7 +136,8 @@ def _headless(gmsh, args, label) -> int:
         ok = result.counts()["valid"] == len(result)
     views = result.extra.get("gmsh_views", {})
     print("views: " + ", ".join(f"{gmsh.option.getString(f'View[{gmsh.view.getIndex(t)}].Name')!r} (tag {t})"
-                                for t in views.values()))
+                                for t in views.values() if isinstance(t, int))
+          + "".join(f"; {v}" for v in views.values() if isinstance(v, str)))
     if args.output:
         for f in write_views(args.output):
             print(f"wrote {f}")

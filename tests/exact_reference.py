@@ -27,6 +27,10 @@ DEGREES = {
     "hexahedron": (("line", 2),) * 3,
     "hexahedron20": (("line", 5),) * 3,
     "hexahedron27": (("line", 5),) * 3,
+    # order 3: det J of a tetrahedron has degree 3 (3 - 1) = 6, of a wedge 3 p - 2 = 7 on the triangle, 3 p - 1 = 8
+    # along t
+    "tetra20": (("tet", 6),),
+    "wedge40": (("tri", 7), ("line", 8)),
 }
 _DIM = {"line": 1, "tri": 2, "tet": 3}
 

@@ -79,6 +79,12 @@ def test_cell_types_agree_with_gmsh_and_vtk_sampling(tiny_run):
     assert x["sampled_below_lower"] == 0 and x["valid_but_sampled_nonpositive"] == 0  # sampling never refutes us
     assert x["max_bracket"] <= 1e-8
     assert sum(s["invalid"] for s in x["sets"]) > 0 and sum(s["inside_only"] for s in x["sets"]) > 0
+    # the curved cells of order 3: sampling (VTK's Lagrange cells; pyramids Gmsh's) never below our lower bound,
+    # every cell decided, Gmsh's decisive signs agree on tetrahedra and hexahedra
+    c = x["curved"]
+    assert {s["type"] for s in c["sets"]} == {"tetra20", "hexahedron64", "wedge40", "pyramid30"}
+    assert c["sampled_below_lower"] == 0 and c["undecided"] == 0
+    assert all(s["sign_disagreements"] == 0 for s in c["sets"] if s["type"] in ("tetra20", "hexahedron64"))
 
 
 def test_sampling_is_sane(tiny_run):

@@ -281,12 +281,14 @@ def test_types_without_an_exact_element_are_counted_not_checked(session):
     ntags, _ = gm.add_hex_mesh(P, H)
     vol = gmsh.model.addDiscreteEntity(3)
     base = [int(t) for t in ntags[:4]]
-    gmsh.model.mesh.addNodes(3, vol, list(range(200, 216)), np.random.default_rng(0).random(48).tolist())
-    gmsh.model.mesh.addElementsByType(vol, 29, [], base + list(range(200, 216)))  # a 20-node (cubic) tetrahedron
+    # a tetrahedron of order 6 (84 nodes): hexsos checks orders 1 to 5
+    t6 = gmsh.model.mesh.getElementType("Tetrahedron", 6)
+    gmsh.model.mesh.addNodes(3, vol, list(range(200, 280)), np.random.default_rng(0).random(240).tolist())
+    gmsh.model.mesh.addElementsByType(vol, t6, [], base + list(range(200, 280)))
     result = gmsh_plugin.check_model()
     hx = result.extra["gmsh"]
     assert len(result) == 1 and list(hx.skipped.values()) == [1] and "not checked" in hx.describe()
-    assert hx.skipped_nodes.sum() == 20  # kept fixed by a repair
+    assert hx.skipped_nodes.sum() == 84  # kept fixed by a repair
 
 
 def test_no_hexahedra_and_no_session_are_typed_errors(session):

@@ -161,7 +161,7 @@ def test_from_meshio_collects_hex_blocks_in_order_and_keeps_the_rest():
     [
         ([("triangle", np.array([[0, 1, 2]] * 30)), ("line", np.array([[0, 1]] * 3))], ["30 triangle", "3 line"]),
         ([("quad", np.array([[0, 1, 2, 3]] * 4))], ["4 quad"]),
-        ([("tetra20", np.zeros((2, 20), dtype=int))], ["2 tetra20", "not checked"]),
+        ([("tetra84", np.zeros((2, 84), dtype=int))], ["2 tetra84", "not checked"]),  # order 6: beyond hexsos
         ([("hexahedron", np.zeros((0, 8), dtype=int)), ("triangle", np.array([[0, 1, 2]]))], ["1 triangle"]),
     ],
 )

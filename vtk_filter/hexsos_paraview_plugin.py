@@ -309,8 +309,12 @@ def _checkable(grid, elements):
     types : (C,) uint8, every cell's VTK type
     """
     types = _cell_types(grid)
-    by_vtk = {el.vtk_type: name for name, el in elements.ELEMENTS.items() if el.vtk_type >= 0}
-    by_vtk[VTK_VOXEL] = "voxel"
+    # (VTK type, node count) -> registry name: VTK's Lagrange cells (71, 72, 73) have one type id for every order
+    by_vtk = {}
+    for name, el in elements.ELEMENTS.items():
+        if el.vtk_type >= 0:
+            by_vtk.setdefault(el.vtk_type, {})[el.n_nodes] = name
+    by_vtk[VTK_VOXEL] = {8: "voxel"}
     present = [int(t) for t in dict.fromkeys(types.tolist()) if int(t) in by_vtk]
     if not present:
         return [], types
@@ -319,18 +323,20 @@ def _checkable(grid, elements):
     conn = np.asarray(conn, dtype=np.int64)
     blocks = []
     for vt in present:
-        name = by_vtk[vt]
-        el = elements.ELEMENTS["hexahedron" if name == "voxel" else name]
-        cell_ids = np.flatnonzero(types == vt).astype(np.int64)
-        sizes = offsets[cell_ids + 1] - offsets[cell_ids]
-        if np.any(sizes != el.n_nodes):
-            bad = int(cell_ids[np.flatnonzero(sizes != el.n_nodes)[0]])
-            raise ValueError(f"cell {bad} is a {name} (VTK type {vt}) with {int(offsets[bad + 1] - offsets[bad])} "
-                             f"points: expected {el.n_nodes}")
-        H = conn[offsets[cell_ids][:, None] + np.arange(el.n_nodes)]
-        if name == "voxel":
-            H = H[:, elements.VOXEL_TO_VTK]
-        blocks.append(("hexahedron" if name == "voxel" else name, H, cell_ids))
+        ids = np.flatnonzero(types == vt).astype(np.int64)
+        sizes = offsets[ids + 1] - offsets[ids]
+        for size in dict.fromkeys(sizes.tolist()):
+            name = by_vtk[vt].get(int(size))
+            if name is None:
+                bad = int(ids[np.flatnonzero(sizes == size)[0]])
+                want = " or ".join(str(k) for k in sorted(by_vtk[vt]))
+                raise ValueError(f"cell {bad} is of VTK type {vt} with {int(size)} points: expected {want}")
+            el = elements.ELEMENTS["hexahedron" if name == "voxel" else name]
+            cell_ids = ids[sizes == size]
+            H = conn[offsets[cell_ids][:, None] + np.arange(el.n_nodes)]
+            if name == "voxel":
+                H = H[:, elements.VOXEL_TO_VTK]
+            blocks.append(("hexahedron" if name == "voxel" else name, H, cell_ids))
     return blocks, types
 
 

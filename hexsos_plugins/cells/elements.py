@@ -18,6 +18,10 @@ wedge18        32     13     18      unit triangle times [0, 1]
 hexahedron     12     5      8       [0, 1]^3
 hexahedron20   25     17     20      [0, 1]^3
 hexahedron27   29     12     27      [0, 1]^3
+tetra20 .. 56  71     29-31  20-56   unit simplex (complete Lagrange, orders 3-5: :mod:`.lagrange`)
+hexahedron64.. 72     92-94  64-216  [0, 1]^3 (orders 3-5)
+wedge40 .. 126 73     90,91,106 40-126 unit triangle times [0, 1] (orders 3-5)
+pyramid30 ..91 --     118-120 30-91  the pyramid (orders 3-5, Bergot's space, Gmsh's node order)
 ============== ====== ====== ======= =========================================================
 
 ``voxel`` (VTK 11) is an axis-aligned hexahedron with its nodes in lexicographic order (x fastest); readers
@@ -72,6 +76,9 @@ from functools import cached_property
 from itertools import product
 
 import numpy as np
+
+from .lagrange import TYPES as _LAGRANGE_TYPES
+from .lagrange import lagrange_shapes, reference_nodes
 
 __all__ = ["Element", "ELEMENTS", "CELL_TYPES", "VOXEL_TO_VTK", "element", "cell_type_code", "world_points", "eval_exact", "HEX_FACES"]
 
@@ -186,6 +193,7 @@ class Element:
     basis: tuple = field(repr=False)  # polynomials spanning the space, or a function returning them
     gmsh_to_vtk: tuple = field(repr=False)
     gmsh_factor: float = 1.0
+    lagrange: bool = False  # a complete Lagrange cell on its lattice: shape functions built directly (lagrange.py)
 
     @property
     def n_nodes(self) -> int:
@@ -195,6 +203,8 @@ class Element:
     def shape_polynomials(self) -> tuple:
         """The shape functions N_0 .. N_{n-1} as exact polynomials ({(i, j, k): Fraction})."""
         n = self.n_nodes
+        if self.lagrange:  # products of Lagrange polynomials on the lattice: no linear solve (lagrange.py)
+            return lagrange_shapes(self.domain, self.order, self.nodes)
         basis = self.basis() if callable(self.basis) else self.basis  # (a callable: computed when first needed)
         V = [[eval_exact(b, x) for b in basis] for x in self.nodes]  # V[i][k] = basis_k(node_i)
         # N_i = sum_k C[k][i] basis_k with V C = I
@@ -388,6 +398,27 @@ ELEMENTS = {
     "hexahedron27": Element("hexahedron27", 29, 12, "cube", 2, _nodes(_HEX8, _HEX20_EDGES, _HEX27_REST), 8, _HEX_FACES,
                             _monomial_space(_q(2)), _HEX20_G2V + (22, 23, 21, 24, 20, 25, 26), 0.125),
 }
+
+_CORNER_FACES = {"tet": _TET_FACES, "cube": _HEX_FACES, "prism": _WEDGE_FACES, "pyramid": _PYR_FACES}
+_CORNERS = {"tet": 4, "cube": 8, "prism": 6, "pyramid": 4}
+
+
+def _lagrange_element(name, domain, p, vtk_type, gmsh_type, factor):
+    """A complete Lagrange cell of order p (:mod:`.lagrange`): VTK's node order (pyramids: Gmsh's)."""
+    nodes = reference_nodes(domain, p, "vtk")
+    if domain == "pyramid":
+        g2v = tuple(range(len(nodes)))
+        basis = lambda: _pyramid_basis(p)  # noqa: E731
+    else:
+        where = {x: i for i, x in enumerate(reference_nodes(domain, p, "gmsh"))}
+        g2v = tuple(where[x] for x in nodes)
+        basis = ()
+    return Element(name, vtk_type, gmsh_type, domain, p, nodes, _CORNERS[domain], _CORNER_FACES[domain], basis, g2v,
+                   factor, lagrange=domain != "pyramid")
+
+
+for _row in _LAGRANGE_TYPES:
+    ELEMENTS[_row[0]] = _lagrange_element(*_row)
 
 #: The cell types in a fixed order: ``CheckResult.cell_type`` holds indices into this tuple.
 CELL_TYPES = tuple(ELEMENTS)

@@ -15,7 +15,14 @@ wedge           tri (1) x line (2)               9                     prism 3p 
 wedge15, 18     tri (4) x line (5)               90
 hexahedron      line (2)^3                       27                    hex 3p - 1
 hexahedron20,27 line (5)^3                       216
+tetra (order p) tet (3p - 3)                     84, 220, 455 (p=3-5)
+hexahedron (p)  line (3p - 1)^3                  729, 1728, 3375
+wedge (p)       tri (3p - 2) x line (3p - 1)     324, 792, 1575
+pyramid (p)     line (3p-1)^2 x line (3p-3)      567, 1440, 2925
 =============== ================================ ===================== ==============
+
+(orders 3-5: the complete Lagrange cells of :mod:`.lagrange`; their simplex factors of high degree are built by
+closed formulas, :func:`factor_tables`, not by inverting a Vandermonde matrix.)
 
 (exact degrees: e.g. for a linear wedge x_r, x_s are constant on the triangle and linear in t, x_t linear on
 the triangle and constant in t.) Every value on the element is a convex combination of the coefficients, so
@@ -48,8 +55,10 @@ from math import comb, factorial, prod
 import numpy as np
 
 from .elements import ELEMENTS
+from .lagrange import TYPES as LAGRANGE_TYPES
 
-__all__ = ["JacobianSpace", "space", "formulation", "factor_indices", "product_table", "FACTOR_KINDS"]
+__all__ = ["JacobianSpace", "space", "formulation", "factor_indices", "factor_tables", "product_table", "FACTOR_KINDS",
+           "DIRECT_ABOVE"]
 
 _F = Fraction
 FACTOR_KINDS = ("line", "tri", "tet")
@@ -87,6 +96,21 @@ _GEOMETRY = {
     "hexahedron20": (("line", 2), ("line", 2), ("line", 2)),
     "hexahedron27": (("line", 2), ("line", 2), ("line", 2)),
 }
+
+
+def _lagrange_factors(domain, p):
+    """det J's factors and the geometry's of a complete Lagrange cell of order p (pyramids: the measure)."""
+    if domain == "tet":
+        return (("tet", 3 * p - 3),), (("tet", p),)
+    if domain == "cube":
+        return (("line", 3 * p - 1),) * 3, (("line", p),) * 3
+    if domain == "prism":
+        return (("tri", 3 * p - 2), ("line", 3 * p - 1)), (("tri", p), ("line", p))
+    return (("line", 3 * p - 1), ("line", 3 * p - 1), ("line", 3 * p - 3)), (("line", p),) * 3
+
+
+for _name, _domain, _p, *_ in LAGRANGE_TYPES:
+    _FACTORS[_name], _GEOMETRY[_name] = _lagrange_factors(_domain, _p)
 
 
 # --- one factor ------------------------------------------------------------------------------------------------
@@ -183,10 +207,119 @@ def _inverse(M):
     return [r[n:] for r in A]
 
 
+#: Factors with more coefficients than this are built by :func:`factor_tables`' direct construction (no
+#: inverse of a Vandermonde matrix: the inverse costs n^3 rational operations, minutes for a tetrahedron of degree 6).
+DIRECT_ABOVE = 40
+
+
 @lru_cache(maxsize=None)
 def _factor(kind, p):
-    """Exact tables of one factor: indices, sample points, T (values -> coefficients), children (matrices
-    and maps), control points, vertex indices, Bernstein -> monomial matrix and the monomial exponents."""
+    return factor_tables(kind, p, direct=len(factor_indices(kind, p)) > DIRECT_ABOVE)
+
+
+def _homogeneous(m, k):
+    """Exponents of the monomials of degree k in m variables, in a fixed order, and their index."""
+    E = [e for e in product(range(k + 1), repeat=m) if sum(e) == k]
+    return E, {e: i for i, e in enumerate(E)}
+
+
+def _multinomial(e):
+    return factorial(sum(e)) // prod(factorial(a) for a in e)
+
+
+def _full(kind, p, alpha):
+    """The barycentric exponent (alpha_0, alpha_1, ...) of a factor's multi-index."""
+    return (p - sum(alpha),) + tuple(alpha)
+
+
+def _subdivision_direct(kind, p, A, o, idx):
+    """The child matrix S (c_child = S c) of a factor of degree p for the child map x = o + A y, exactly, without
+    any inverse: B_alpha composed with the map is a product of the parent's barycentric coordinates, each a
+    linear form in the child's barycentric coordinates mu (weights W[j, i] = lambda_i of the child's vertex j, in
+    {0, 1/2, 1}); the products are expanded in integers (2 W), and S[beta, alpha] = multinomial(alpha)
+    [mu^beta] prod (2 lambda_i)^alpha_i / (multinomial(beta) 2^p)."""
+    d = _DIM[kind]
+    m = d + 1
+    verts = [tuple(_F(0) for _ in range(d))] + [tuple(_F(int(i == j)) for i in range(d)) for j in range(d)]
+    W2 = []
+    for y in verts:
+        x = _apply(A, o, y)
+        lam = _bary(kind, x) if kind != "line" else (1 - x[0], x[0])
+        row = [2 * v for v in lam]
+        assert all(v.denominator == 1 for v in row), "child vertices off the half-lattice"
+        W2.append([int(v) for v in row])
+    W2 = np.array(W2, dtype=np.int64)  # (child vertex j, parent coordinate i)
+    # P[k]: rows = parent exponents of degree k (order of _homogeneous), columns = mu monomials of degree k
+    E0, _ = _homogeneous(m, 0)
+    P = np.ones((1, 1), dtype=np.int64)
+    rows = E0
+    for k in range(p):
+        Ek, ik = _homogeneous(m, k)
+        Ek1, ik1 = _homogeneous(m, k + 1)
+        shift = [np.array([ik1[tuple(e[a] + (a == j) for a in range(m))] for e in Ek]) for j in range(m)]
+        parent, first = [], []
+        for e in Ek1:
+            i = next(a for a in range(m) if e[a])
+            parent.append(ik[tuple(e[a] - (a == i) for a in range(m))])
+            first.append(i)
+        parent, first = np.array(parent), np.array(first)
+        out = np.zeros((len(Ek1), len(Ek1)), dtype=np.int64)
+        src = P[parent]
+        for j in range(m):
+            out[:, shift[j]] += W2[j, first][:, None] * src
+        P, rows = out, Ek1
+    ir = {e: i for i, e in enumerate(rows)}
+    n = len(idx)
+    full = [_full(kind, p, a) if kind != "line" else (p - a[0], a[0]) for a in idx]
+    sel = np.array([ir[e] for e in full])
+    Q = P[np.ix_(sel, sel)].T  # Q[beta, alpha]
+    den = 2 ** p
+    mult = [_multinomial(e) for e in full]
+    S = [[_F(0)] * n for _ in range(n)]
+    for b, a in zip(*np.nonzero(Q)):
+        S[b][a] = _F(mult[a] * int(Q[b, a]), mult[b] * den)
+    return S
+
+
+def _monomial_direct(kind, p, idx, mono):
+    """Bernstein -> monomial matrix (mono k, basis i): B_alpha = multinomial(alpha_0, alpha) (1 - sum x)^alpha_0
+    x^alpha, expanded by the multinomial theorem."""
+    where = {mm: k for k, mm in enumerate(mono)}
+    M = [[_F(0)] * len(idx) for _ in mono]
+    for i, a in enumerate(idx):
+        a0 = p - sum(a)
+        c = _multinomial((a0,) + tuple(a))
+        for g in product(range(a0 + 1), repeat=len(a)):
+            if sum(g) > a0:
+                continue
+            coef = c * _multinomial((a0 - sum(g),) + g) * (-1) ** sum(g)
+            M[where[tuple(x + y for x, y in zip(a, g))]][i] += coef
+    return M
+
+
+def factor_tables(kind, p, direct=False):
+    """Exact tables of one factor: indices, sample points, T (values -> coefficients; None for a direct build
+    with more than DIRECT_ABOVE coefficients), children (matrices and maps), control points, vertex indices,
+    Bernstein -> monomial matrix and the monomial exponents. ``direct``: the child matrices and the monomial
+    matrix by closed formulas (the same rationals; tests compare both builds)."""
+    idx = factor_indices(kind, p)
+    n = len(idx)
+    pts = [_ctrl_point(kind, p, a) for a in idx]  # sample at the control points (equispaced)
+    mono = idx if kind != "line" else [(i,) for i in range(p + 1)]
+    verts = [i for i, a in enumerate(idx) if (p == 0 and i == 0) or (p > 0 and (
+        sum(a) == 0 or (kind == "line" and a[0] == p) or (kind != "line" and max(a) == p)))]
+    if direct and p > 0:
+        T = None
+        if n <= 60:  # the geometry's factors (degree <= 5) need T
+            T = _inverse([[_basis_value(kind, p, a, x) for a in idx] for x in pts])
+        kids = [(_subdivision_direct(kind, p, A, o, idx), A, o) for A, o in _children(kind, p)]
+        return {"idx": idx, "pts": pts, "T": T, "children": kids, "verts": verts, "mono": mono,
+                "M": _monomial_direct(kind, p, idx, mono)}
+    return _factor_by_inverse(kind, p)
+
+
+def _factor_by_inverse(kind, p):
+    """factor_tables by inverting the Vandermonde matrix of the Bernstein basis at the control points."""
     idx = factor_indices(kind, p)
     n = len(idx)
     pts = [_ctrl_point(kind, p, a) for a in idx]  # sample at the control points (equispaced)
@@ -256,8 +389,6 @@ def product_table(fa, fb):
 def _geometry_control(name, gfactors):
     """(nctrl, n) exact matrix C with control points P = C X of the type's geometry as a Bernstein map on
     gfactors (serendipity types: their map is a polynomial of the complete space, so this is exact)."""
-    from .elements import eval_exact
-
     el = ELEMENTS[name]
     tabs = [_factor(k, p) for k, p in gfactors]
     pts = []
@@ -266,10 +397,26 @@ def _geometry_control(name, gfactors):
         for t, j in zip(tabs, combo):
             x += list(t["pts"][j])
         pts.append(tuple(x))
-    N = [[eval_exact(p, x) for p in el.shape_polynomials] for x in pts]  # values of the map at the points
     T = _kron([t["T"] for t in tabs])
     n = el.n_nodes
-    return [[sum((T[a][q] * N[q][i] for q in range(len(pts))), _F(0)) for i in range(n)] for a in range(len(pts))]
+    where = {x: q for q, x in enumerate(pts)}
+    if len(pts) == n and all(tuple(x) in where for x in el.nodes):
+        # a Lagrange cell whose nodes are the sample points: N_i(pt_q) = [q is node i], C = T's columns
+        q_of = [where[tuple(x)] for x in el.nodes]
+        return [[T[a][q_of[i]] for i in range(n)] for a in range(len(pts))]
+    N = [_eval_all(el.shape_polynomials, x) for x in pts]  # values of the map at the points
+    return [[sum((T[a][q] * N[q][i] for q in range(len(pts)) if N[q][i]), _F(0)) for i in range(n)]
+            for a in range(len(pts))]
+
+
+def _eval_all(polys, x):
+    """The values of many exact polynomials at one point (each power computed once)."""
+    pw = [[_F(1)] for _ in range(3)]
+    top = max(max(e[d] for p in polys for e in p) for d in range(3))
+    for d in range(3):
+        for _ in range(top):
+            pw[d].append(pw[d][-1] * x[d])
+    return [sum((c * pw[0][e[0]] * pw[1][e[1]] * pw[2][e[2]] for e, c in p.items()), _F(0)) for p in polys]
 
 
 def _geometry_columns(gfactors, slots):

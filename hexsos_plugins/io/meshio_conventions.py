@@ -16,6 +16,18 @@ in two places, measured against VTK 9.7's own shape functions and Gmsh 4.15's re
   ``gmsh_to_vtk`` on reading and its inverse before writing. (``tetra10``, ``wedge15``, ``hexahedron20`` and
   ``hexahedron27`` meshio permutes as the registry does.)
 
+Lagrange cells of orders 3-5: meshio names VTK's Lagrange cells by their VTK names (``VTK_LAGRANGE_TETRAHEDRON``,
+``_HEXAHEDRON``, ``_WEDGE``, whatever their node count) and Gmsh's by ``tetra20``, ``hexahedron64``, ``wedge40``,
+...; the registry uses the latter for both (its nodes in VTK's order, which is the Lagrange cells' order in a VTK
+file). :func:`fix_read_order` renames VTK's blocks to the registry's names by node count, :func:`fix_write_order`
+back. VTK 9.7 has no Lagrange pyramid class (``VTK_LAGRANGE_PYRAMID``, 74, is a type id only): a VTK file
+cannot hold a pyramid of order 3 or more; :data:`VTK_LINEAR_PYRAMID_FROM` says which types the writers reduce to
+their 5 corners (with a note). VTK's Lagrange hexahedron changed its node order in VTU file version 2.2 (the inner
+nodes of edges 10 and 11, (2, 6) and (3, 7), exchanged); VTK's XML reader converts files of older versions. meshio
+writes version 0.1 and reads the nodes as they are: so a Lagrange hexahedron goes into a version-0.1 file in the
+old order (:func:`fix_write_order`) and comes out of one (``vtu_version`` below 2.2, :func:`fix_read_order`)
+back in the current one; measured with VTK 9.7's reader, which then sees the registry's cell.
+
 Imports the cells wing only; used by the readers and the writers alike.
 """
 
@@ -32,7 +44,33 @@ import numpy as np
 from ..cells.elements import ELEMENTS
 
 __all__ = ["quiet_meshio", "shorten", "DIMS", "meshio_dimensions", "WEDGE_SWAP", "fix_read_order", "fix_write_order",
-           "FORMAT_PACKAGES", "missing_package"]
+           "FORMAT_PACKAGES", "missing_package", "VTK_LAGRANGE_NAMES", "VTK_LINEAR_PYRAMID_FROM", "LEGACY_VTU_HEX",
+           "vtu_version"]
+
+#: meshio's names of VTK's Lagrange cells, by the registry's domain
+VTK_LAGRANGE_NAMES = {"tet": "VTK_LAGRANGE_TETRAHEDRON", "cube": "VTK_LAGRANGE_HEXAHEDRON",
+                      "prism": "VTK_LAGRANGE_WEDGE"}
+_FROM_VTK_LAGRANGE = {(VTK_LAGRANGE_NAMES[el.domain], el.n_nodes): name for name, el in ELEMENTS.items()
+                      if el.lagrange and el.domain in VTK_LAGRANGE_NAMES}
+_TO_VTK_LAGRANGE = {name: vtk for (vtk, _), name in _FROM_VTK_LAGRANGE.items()}
+# the Lagrange types whose VTK order is not Gmsh's (meshio permutes none of them)
+_LAGRANGE_G2V = {name: np.array(el.gmsh_to_vtk) for name, el in ELEMENTS.items()
+                 if el.order >= 3 and list(el.gmsh_to_vtk) != list(range(el.n_nodes))}
+
+
+def _legacy_hex(el):
+    """The permutation exchanging the inner nodes of edges 10 and 11 of a Lagrange hexahedron (VTU < 2.2)."""
+    k = el.order - 1
+    perm = np.arange(el.n_nodes)
+    a, b = 8 + 10 * k, 8 + 11 * k
+    perm[a:a + k], perm[b:b + k] = np.arange(b, b + k), np.arange(a, a + k)
+    return perm
+
+
+#: per Lagrange hexahedron type, the node permutation between VTU versions < 2.2 and >= 2.2 (its own inverse)
+LEGACY_VTU_HEX = {name: _legacy_hex(el) for name, el in ELEMENTS.items() if el.lagrange and el.domain == "cube"}
+#: The registry's pyramids a VTK file cannot hold (order >= 3): written as linear pyramids (their 5 corners).
+VTK_LINEAR_PYRAMID_FROM = tuple(name for name, el in ELEMENTS.items() if el.domain == "pyramid" and el.order >= 3)
 
 
 @contextlib.contextmanager
@@ -108,11 +146,27 @@ def meshio_dimensions(extra=()):
                 else DIMS.get(t, 2)
     for t, d in add.items():
         table[t] = d
+    # the registry's types meshio's Gmsh tables lack (pyramids of order >= 3): their Gmsh ids and node counts
+    from meshio._common import num_nodes_per_cell
+    from meshio.gmsh.common import _meshio_to_gmsh_type as to_gmsh
+
+    gadd = {name: el for name, el in ELEMENTS.items() if name not in to_gmsh and el.gmsh_type > 0}
+    nadd = {name: el.n_nodes for name, el in ELEMENTS.items() if name not in num_nodes_per_cell}
+    for name, el in gadd.items():
+        to_gmsh[name] = el.gmsh_type
+        table.setdefault(name, 3)
+    num_nodes_per_cell.update(nadd)
     try:
         yield
     finally:
         for t in add:
             table.pop(t, None)
+        for t in gadd:
+            to_gmsh.pop(t, None)
+            if t not in add:
+                table.pop(t, None)
+        for t in nadd:
+            num_nodes_per_cell.pop(t, None)
 
 
 
@@ -146,18 +200,35 @@ _VTK_FORMATS = ("vtk", "vtu", "vtk42", "vtk51")
 _GMSH_FORMATS = ("gmsh", "gmsh22", "gmsh4", "gmsh41")
 
 
+def vtu_version(path) -> tuple:
+    """The ``version`` of a VTU file's ``VTKFile`` element, as a tuple ((0, 1) when it has none)."""
+    with open(path, "rb") as f:
+        head = f.read(4096)
+    m = re.search(rb"<VTKFile[^>]*\sversion\s*=\s*[\"']([0-9]+)\.([0-9]+)", head)
+    return (int(m.group(1)), int(m.group(2))) if m else (0, 1)
+
+
 def _permute(mesh: meshio.Mesh, cell_type: str, perm: np.ndarray) -> None:
     for block in mesh.cells:
         if block.type == cell_type and len(block.data):
             block.data = np.ascontiguousarray(np.asarray(block.data)[:, perm])
 
 
-def fix_read_order(mesh: meshio.Mesh, fmt: str) -> meshio.Mesh:
+def fix_read_order(mesh: meshio.Mesh, fmt: str, vtu_version=(0, 1)) -> meshio.Mesh:
     """Blocks of a mesh meshio just read as ``fmt``, in place, in VTK node order (see the module docstring)."""
     if fmt in _VTK_FORMATS:
         _permute(mesh, "wedge", WEDGE_SWAP)
+        for block in mesh.cells:
+            name = _FROM_VTK_LAGRANGE.get((block.type, np.shape(block.data)[1] if np.ndim(block.data) == 2 else -1))
+            if name is not None:
+                block.type = name
+        if fmt == "vtu" and vtu_version < (2, 2):
+            for name, perm in LEGACY_VTU_HEX.items():
+                _permute(mesh, name, perm)
     elif fmt in _GMSH_FORMATS:
         _permute(mesh, "wedge18", WEDGE18_G2V)
+        for name, perm in _LAGRANGE_G2V.items():  # meshio keeps Gmsh's order for these
+            _permute(mesh, name, perm)
     return mesh
 
 
@@ -166,6 +237,13 @@ def fix_write_order(mesh: meshio.Mesh, fmt: str) -> meshio.Mesh:
     the file comes out in the format's own order."""
     if fmt in _VTK_FORMATS:
         _permute(mesh, "wedge", WEDGE_SWAP)
+        if fmt == "vtu":  # meshio writes VTU version 0.1: the Lagrange hexahedron's old order (the swap is an involution)
+            for name, perm in LEGACY_VTU_HEX.items():
+                _permute(mesh, name, perm)
+        for block in mesh.cells:
+            block.type = _TO_VTK_LAGRANGE.get(block.type, block.type)
     elif fmt in _GMSH_FORMATS:
         _permute(mesh, "wedge18", WEDGE18_V2G)
+        for name, perm in _LAGRANGE_G2V.items():
+            _permute(mesh, name, np.argsort(perm))
     return mesh

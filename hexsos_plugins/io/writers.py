@@ -42,6 +42,7 @@ import contextlib
 import os
 import re
 import tempfile
+from collections import Counter
 from pathlib import Path
 
 import meshio
@@ -52,7 +53,8 @@ from ..errors import HexsosError, InvalidInputError, MeshWriteError
 from .mesh import Mesh, copy_block, copy_mesh
 from .formats import NO_WRITE, WRITE_ALIASES, WRITE_BY_EXT, ext_formats, few_exts, format_name, writer_formats
 from .msh41 import write_msh41
-from .meshio_conventions import fix_write_order, meshio_dimensions, missing_package, quiet_meshio, shorten
+from .meshio_conventions import (VTK_LINEAR_PYRAMID_FROM, fix_write_order, meshio_dimensions, missing_package,
+                                 quiet_meshio, shorten)
 from .readers.tokens import Cursor
 
 __all__ = ["write"]
@@ -186,6 +188,8 @@ def _prepare(mesh: meshio.Mesh, fmt: str, notes: list):
     m = copy_mesh(mesh, cells=cells)
     if fmt in ("vtu", "vtk42", "vtk51", "vtk") and any(b.type == "pyramid14" for b in m.cells):
         _pyramid14_as_13(m, notes)
+    if fmt in ("vtu", "vtk42", "vtk51", "vtk") and any(b.type in VTK_LINEAR_PYRAMID_FROM for b in m.cells):
+        _high_order_pyramids_as_linear(m, notes)
     fix_write_order(m, fmt)
     if voxels:
         notes.append(f"{len(voxels)} voxel block(s) written as hexahedron blocks (VTK node order): "
@@ -214,6 +218,19 @@ def _prepare(mesh: meshio.Mesh, fmt: str, notes: list):
     if fmt not in ("gmsh", "vtk42", "vtu", "medit"):
         post.append(lambda tmp, m=m, fmt=fmt: _name_what_is_missing(tmp, m, fmt, notes))
     return m, kwargs, post
+
+
+def _high_order_pyramids_as_linear(m: meshio.Mesh, notes: list) -> None:
+    """VTK has no Lagrange pyramid (VTK 9.7): pyramids of order >= 3 are written as linear pyramids (their 5
+    corners, the first nodes in Gmsh's order as in VTK's), with a note; the cell arrays stay on them."""
+    n = Counter()
+    for b in m.cells:
+        if b.type in VTK_LINEAR_PYRAMID_FROM:
+            n[b.type] += len(b.data)
+            b.type, b.data = "pyramid", np.ascontiguousarray(np.asarray(b.data)[:, :5])
+    what = ", ".join(f"{k} {t}" for t, k in n.items())
+    notes.append(f"{what} cells written as linear pyramids (their 5 corners; VTK has no Lagrange pyramid): their "
+                 "other nodes are not in this file (write .msh to keep them)")
 
 
 def _pyramid14_as_13(m: meshio.Mesh, notes: list) -> None:

@@ -25,7 +25,8 @@ __all__ = ["Tables", "tables", "write_tables", "tables_fingerprint", "saved_tabl
 
 _HERE = Path(__file__).parent
 #: The files the tables and the generated code depend on (their fingerprint).
-TABLE_SOURCES = (_HERE.parent / "cells" / "elements.py", _HERE.parent / "cells" / "jacobian.py", Path(__file__),
+TABLE_SOURCES = (_HERE.parent / "cells" / "elements.py", _HERE.parent / "cells" / "jacobian.py",
+                 _HERE.parent / "cells" / "lagrange.py", Path(__file__),
                  _HERE / "generated.py")
 
 _DIMS = {"line": 1, "tri": 2, "tet": 3}
@@ -256,7 +257,7 @@ def write_tables(path=TABLE_FILE) -> str:
         for f in TABLE_SCALARS:
             data[f"{name}/{f}"] = np.array(getattr(t, f))
     tmp = Path(path).with_suffix(".tmp.npz")
-    np.savez(tmp, **data)
+    np.savez_compressed(tmp, **data)  # (the high orders' child matrices are mostly zeros)
     os.replace(tmp, path)
     return str(path)
 

@@ -796,10 +796,10 @@ def _refine(b, err, level_err, tol, upper, argmin, max_depth, max_iter, S, Snz, 
 
 @njit(cache=True, nogil=True)
 def _mono_derivs(c, exps, x, g, H, pw):
-    """Value, gradient g (3,) and Hessian H (3, 3) of sum_m c_m x^m (pw: (3, 8) scratch)."""
+    """Value, gradient g (3,) and Hessian H (3, 3) of sum_m c_m x^m (pw: (3, 1 + the largest exponent) scratch)."""
     for a in range(3):
         pw[a, 0] = 1.0
-        for k in range(1, 8):
+        for k in range(1, pw.shape[1]):
             pw[a, k] = pw[a, k - 1] * x[a]
     f = 0.0
     g0 = g1 = g2 = 0.0
@@ -838,7 +838,7 @@ def _mono_derivs(c, exps, x, g, H, pw):
 def _mono_value(c, exps, x, pw):
     for a in range(3):
         pw[a, 0] = 1.0
-        for k in range(1, 8):
+        for k in range(1, pw.shape[1]):
             pw[a, k] = pw[a, k - 1] * x[a]
     f = 0.0
     for m in range(c.shape[0]):
@@ -1091,7 +1091,7 @@ def run_chunk(points, conn, ids, start, stop, cptr, cidx_, cval, col_a, col_b, c
     argmin = np.empty(3)
     x = np.empty(3)
     pc = np.empty(nb)
-    pw = np.empty((3, 8))
+    pw = np.empty((3, max(8, exps.max() + 1)))  # powers up to the largest exponent
     Q = np.empty((3, 3))
     Z = np.empty((3, 3))
     Hr = np.empty((3, 3))
@@ -1245,7 +1245,7 @@ def evaluate(b, X, fdim, fslot, fexp, fcoef, sizes, maxn, out):
 def polish_many(b, X0, Mptr, Midx, Mval, exps, G, h, iterations, fdim, fslot, fexp, fcoef, sizes, maxn, out, vals):
     nb = b.shape[1]
     pc = np.empty(nb)
-    pw = np.empty((3, 8))
+    pw = np.empty((3, max(8, exps.max() + 1)))  # powers up to the largest exponent
     Q = np.empty((3, 3))
     Z = np.empty((3, 3))
     Hr = np.empty((3, 3))

@@ -57,7 +57,7 @@ from ..mesh import Mesh
 from ..formats import (READ_ALIASES, ext_formats, few_exts, format_name, reader_formats, readers_for,
                        register_reader, supported_extensions)
 from .common import ParseError, meshio_read
-from ..meshio_conventions import fix_read_order, shorten
+from ..meshio_conventions import fix_read_order, shorten, vtu_version
 from .gmsh22_data import read_gmsh22_data
 from .gmsh_api import read_gmsh_api
 from .legacy_vtk import read_legacy_vtk, recheck_vtk51_tetra
@@ -164,7 +164,7 @@ def via_meshio(path: Path, fmt: str):
     skipped = [m for m in log if "cannot handle" in m]
     if skipped:
         raise ParseError("meshio skipped cells it cannot read: " + "; ".join(skipped))
-    fix_read_order(mesh, fmt)
+    fix_read_order(mesh, fmt, vtu_version(path) if fmt == "vtu" else (0, 1))
     if fmt == "vtk":
         mesh = recheck_vtk51_tetra(path, mesh)
     return mesh

@@ -142,7 +142,9 @@ def _extract(gmsh, v4: bool) -> meshio.Mesh:
             if name is None:
                 gname = gmsh.model.mesh.getElementProperties(int(gtype))[0]
                 raise ParseError(f"Gmsh element type {int(gtype)} ({gname}) has no meshio cell type")
-            k = int(gmsh.model.mesh.getElementProperties(int(gtype))[3])
+            # the node count from the registry where it has the type: Gmsh 4.15 cannot give the properties of
+            # prisms of order >= 3 ("FaceClosureFull not implemented"), though it reads and stores them
+            k = len(et) and len(en) // len(et)
             conn = index(en).reshape(-1, k)
             if perm is not None and len(perm) >= k and not np.array_equal(perm[:k], np.arange(k)):
                 conn = np.ascontiguousarray(conn[:, perm[:k]])

@@ -53,6 +53,10 @@ def _types():
         else:
             perm = np.asarray(_gmsh_to_meshio_order(name, np.arange(k)[None, :]))[0]
         out[int(g)] = (name, k, None if np.array_equal(perm, np.arange(k)) else perm)
+    for name, el in ELEMENTS.items():  # the registry's types meshio lacks (pyramids of order >= 3)
+        if el.gmsh_type not in out:
+            perm = np.array(el.gmsh_to_vtk)
+            out[el.gmsh_type] = (name, el.n_nodes, None if np.array_equal(perm, np.arange(el.n_nodes)) else perm)
     return out
 
 
