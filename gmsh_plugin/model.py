@@ -203,7 +203,8 @@ def model_cells() -> GmshCells:
         if skipped:  # a 3-D mesh, of an order (or type) with no exact element here: say so, not "mesh it"
             msg += ("; it holds " + ", ".join(f"{k} {name}" for name, k in skipped.items())
                     + ", of a type hexsos has no exact element for (it checks tetrahedra, pyramids, prisms and "
-                      "hexahedra of order 1 and 2): set the mesh order to 1 or 2 (Mesh.ElementOrder) and mesh again")
+                      "hexahedra of orders 1 to 5, complete, and the serendipity cells of order 2): set the mesh order to 5 or "
+                      "less (Mesh.ElementOrder) and mesh again")
             raise NoCellsError(msg)
         dims = [d for d in (2, 1, 0) if len(gmsh.model.mesh.getElementTypes(d))]
         msg += f" (its elements are of dimension {', '.join(map(str, dims))})" if dims else " (it has no mesh)"

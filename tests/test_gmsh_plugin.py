@@ -840,17 +840,17 @@ def test_screenshot_without_auto_action_is_the_opened_model_and_ends_by_itself(t
     assert mesh.mean() > 0.02 and _red_pixels(img) == 0  # the model as opened: nothing checked, nothing red
 
 
-def test_an_order_3_mesh_is_named_as_such_not_sent_back_to_meshing(tmp_path):
-    path = tmp_path / "order3.msh"
+def test_an_order_6_mesh_is_named_as_such_not_sent_back_to_meshing(tmp_path):
+    path = tmp_path / "order6.msh"
     gmsh.initialize(readConfigFiles=False)
     try:
         gmsh.option.setNumber("General.Terminal", 0)
-        gmsh.model.add("o3")
+        gmsh.model.add("o6")
         gmsh.model.occ.addBox(0, 0, 0, 1, 1, 1)
         gmsh.model.occ.synchronize()
         gmsh.option.setNumber("Mesh.MeshSizeMax", 0.7)
         gmsh.model.mesh.generate(3)
-        gmsh.model.mesh.setOrder(3)
+        gmsh.model.mesh.setOrder(6)
         assert len(gmsh.model.mesh.getElementTypes(3)) == 1
         gmsh.write(str(path))
     finally:
@@ -859,7 +859,7 @@ def test_an_order_3_mesh_is_named_as_such_not_sent_back_to_meshing(tmp_path):
                           text=True, env=_env(), cwd=str(tmp_path), timeout=120)
     assert proc.returncode == 2, proc.stdout + proc.stderr
     (line,) = proc.stderr.strip().splitlines()
-    assert "order 1 and 2" in line and "Tetrahedron 20" in line and "mesh it in 3-D first" not in line, line
+    assert "orders 1 to 5" in line and "Tetrahedron 84" in line and "mesh it in 3-D first" not in line, line
 
 
 def test_status_views_colour_inside_only_apart_and_carry_a_key(demo):
