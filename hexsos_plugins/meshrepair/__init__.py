@@ -1,7 +1,8 @@
 """The repair wing: hand back a mesh a solver can use, certified by the kernel.
 
 Owns: the default method's driver (:mod:`.driver`: untangle, raise the quality, certify, fall back to the
-paper's method), its energies and their compiled loops (:mod:`.optimize`, :mod:`.kernels`), the boundary model
+paper's method), its energies and their compiled loops (:mod:`.optimize`, :mod:`.kernels`), the vertex-by-vertex
+steps (:mod:`.localopt`), the boundary model
 (:mod:`.boundary`: surface, features, sliding), the paper's Algorithms 1 and 2 (:mod:`.paper`), the one result
 type (:mod:`.result`), the options and the one rule for their defaults (:mod:`.options`), the boundary's distance
 to the input (:mod:`.fidelity`), the BLAS thread cap (:mod:`.blas`), and the repair of curved and hex-free
