@@ -192,7 +192,8 @@ def _apply(A, o, x):
     return tuple(o[i] + sum(A[i][j] * x[j] for j in range(len(x))) for i in range(len(o)))
 
 
-def _inverse(M):
+def exact_inverse(M):
+    """The inverse of a square matrix of Fractions, exact (Gauss-Jordan with row pivoting)."""
     n = len(M)
     A = [list(r) + [_F(int(i == j)) for j in range(n)] for i, r in enumerate(M)]
     for c in range(n):
@@ -311,7 +312,7 @@ def factor_tables(kind, p, direct=False):
     if direct and p > 0:
         T = None
         if n <= 60:  # the geometry's factors (degree <= 5) need T
-            T = _inverse([[_basis_value(kind, p, a, x) for a in idx] for x in pts])
+            T = exact_inverse([[_basis_value(kind, p, a, x) for a in idx] for x in pts])
         kids = [(_subdivision_direct(kind, p, A, o, idx), A, o) for A, o in _children(kind, p)]
         return {"idx": idx, "pts": pts, "T": T, "children": kids, "verts": verts, "mono": mono,
                 "M": _monomial_direct(kind, p, idx, mono)}
@@ -324,7 +325,7 @@ def _factor_by_inverse(kind, p):
     n = len(idx)
     pts = [_ctrl_point(kind, p, a) for a in idx]  # sample at the control points (equispaced)
     V = [[_basis_value(kind, p, a, x) for a in idx] for x in pts]
-    T = _inverse(V)
+    T = exact_inverse(V)
     kids = []
     for A, o in _children(kind, p):
         Q = [[_basis_value(kind, p, a, _apply(A, o, x)) for a in idx] for x in pts]
@@ -336,7 +337,7 @@ def _factor_by_inverse(kind, p):
     mono = idx if kind != "line" else [(i,) for i in range(p + 1)]
     # Bernstein basis alpha expanded in monomials: sample-free, by solving on the sample points
     W = [[prod(x[j] ** m[j] for j in range(len(m))) for m in mono] for x in pts]
-    Winv = _inverse(W)  # monomial coefficients of a polynomial from its values at pts
+    Winv = exact_inverse(W)  # monomial coefficients of a polynomial from its values at pts
     Bmono = [[sum(Winv[k][q] * V[q][i] for q in range(n)) for i in range(n)] for k in range(n)]  # (mono k, basis i)
     return {"idx": idx, "pts": pts, "T": T, "children": kids, "verts": verts, "mono": mono, "M": Bmono}
 

@@ -46,6 +46,7 @@ from math import factorial, prod
 
 import numpy as np
 
+from ..cells.jacobian import exact_inverse
 from ..errors import InvalidInputError
 
 __all__ = ["safe_step", "SafeStepResult", "exact_det_at", "T_SAMPLES"]
@@ -76,18 +77,7 @@ def _interpolation():
     """(L, |L| rounded up): the cubic's Bernstein coefficients on [0, 1] from its values at T_SAMPLES (exact
     rationals L rounded to float; the bound covers that rounding)."""
     V = [_bernstein3(t) for t in T_SAMPLES]
-    n = 4
-    A = [list(r) + [Fraction(int(i == j)) for j in range(n)] for i, r in enumerate(V)]
-    for c in range(n):
-        piv = next(r for r in range(c, n) if A[r][c] != 0)
-        A[c], A[piv] = A[piv], A[c]
-        inv = 1 / A[c][c]
-        A[c] = [v * inv for v in A[c]]
-        for r in range(n):
-            if r != c and A[r][c] != 0:
-                f = A[r][c]
-                A[r] = [a - f * b for a, b in zip(A[r], A[c])]
-    Lq = [r[n:] for r in A]
+    Lq = exact_inverse(V)
     L = np.array([[float(v) for v in r] for r in Lq])
     Labs = np.array([[math.nextafter(abs(float(v)), math.inf) if v else 0.0 for v in r] for r in Lq])
     return L, Labs
