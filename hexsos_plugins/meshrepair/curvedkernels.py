@@ -14,19 +14,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-
-@njit(cache=True, inline="always")
-def _cof(J, C):
-    C[0, 0] = J[1, 1] * J[2, 2] - J[1, 2] * J[2, 1]
-    C[0, 1] = J[1, 2] * J[2, 0] - J[1, 0] * J[2, 2]
-    C[0, 2] = J[1, 0] * J[2, 1] - J[1, 1] * J[2, 0]
-    C[1, 0] = J[0, 2] * J[2, 1] - J[0, 1] * J[2, 2]
-    C[1, 1] = J[0, 0] * J[2, 2] - J[0, 2] * J[2, 0]
-    C[1, 2] = J[0, 1] * J[2, 0] - J[0, 0] * J[2, 1]
-    C[2, 0] = J[0, 1] * J[1, 2] - J[0, 2] * J[1, 1]
-    C[2, 1] = J[0, 2] * J[1, 0] - J[0, 0] * J[1, 2]
-    C[2, 2] = J[0, 0] * J[1, 1] - J[0, 1] * J[1, 0]
-    return J[0, 0] * C[0, 0] + J[0, 1] * C[0, 1] + J[0, 2] * C[0, 2]
+from .kernels import cofactor
 
 
 @njit(cache=True)
@@ -84,7 +72,7 @@ def _dets(P, conn, c, dN, X, d, Cs):
                 J[0, e] += x0 * g
                 J[1, e] += x1 * g
                 J[2, e] += x2 * g
-        d[q] = _cof(J, C)
+        d[q] = cofactor(J, C)
         for a in range(3):
             for e in range(3):
                 Cs[q, a, e] = C[a, e]

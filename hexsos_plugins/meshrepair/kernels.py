@@ -13,7 +13,8 @@ from numba import njit, prange
 
 
 @njit(cache=True, inline="always")
-def _cof(J, C):
+def cofactor(J, C):
+    """The cofactor matrix of the 3x3 J into C; returns det J (expanded along its first row)."""
     C[0, 0] = J[1, 1] * J[2, 2] - J[1, 2] * J[2, 1]
     C[0, 1] = J[1, 2] * J[2, 0] - J[1, 0] * J[2, 2]
     C[0, 2] = J[1, 0] * J[2, 1] - J[1, 1] * J[2, 0]
@@ -83,7 +84,7 @@ def untangle_corners(V, conn, G, s, eps, theta, g, want_grad):
                 for d in range(3):
                     J[a, d] *= inv
                     F += J[a, d] * J[a, d]
-            D = _cof(J, C)
+            D = cofactor(J, C)
             if D < dmin:
                 dmin = D
             chi, dchi = _chi(D, e2)
@@ -388,7 +389,7 @@ def _barrier_chunk(V, conn, nz, gi, gv, factor, t, s, beta, hexes, want_grad, ec
                 ok = False
                 smin = -np.inf
                 break
-            D = _cof(E, C)
+            D = cofactor(E, C)
             sj = factor * D / L
             if sj < smin:
                 smin = sj
@@ -490,7 +491,7 @@ def _cell_eval(V, conn, m, G, factor, ref, tau, out, E, C, XU, XV, XW, b, eu, ev
             out[0] = -np.inf
             out[1] = np.inf
             return
-        sj = factor * _cof(E, C) / L
+        sj = factor * cofactor(E, C) / L
         if sj < smin:
             smin = sj
         soft += np.exp(-(sj - ref) / tau)
@@ -558,7 +559,7 @@ def sweep(V, conn, G, factor, order, ptr, inc, loc, proj, step0, tau, max_steps,
                     for d in range(3):
                         c[d] = E[0, d] * E[0, d] + E[1, d] * E[1, d] + E[2, d] * E[2, d]
                     L = np.sqrt(c[0]) * np.sqrt(c[1]) * np.sqrt(c[2])
-                    D = _cof(E, C)
+                    D = cofactor(E, C)
                     sj = factor * D / L
                     w = np.exp(-(sj - m0) / tau)
                     if w < 1e-12:
