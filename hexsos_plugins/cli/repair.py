@@ -22,7 +22,7 @@ __all__ = ["add_parser", "run", "other_cells"]
 def add_parser(subparsers):
     """Add the ``repair`` subcommand to ``subparsers`` (an ``argparse`` sub-parsers action)."""
     from .common import add_run_options
-    from ..meshrepair import DEFAULT_MARGIN, DEFAULT_RHO
+    from ..meshrepair import DEFAULT_MARGIN, DEFAULT_RHO, SURFACE_TOLERANCE
 
     p = subparsers.add_parser(
         "repair", help="untangle, raise the minimum scaled Jacobian, and prove every cell valid; write the mesh",
@@ -58,6 +58,11 @@ def add_parser(subparsers):
     p.add_argument("--feature-angle", type=float, default=45.0, metavar="DEG",
                    help="--boundary slide: boundary edges whose faces' normals differ by more than DEG are feature "
                         "edges (default 45)")
+    p.add_argument("--surface-tolerance", type=float, default=SURFACE_TOLERANCE, metavar="F",
+                   help="--boundary slide on linear cells: how far a boundary vertex may end off the input surface, "
+                        "its feature curve or its feature corner, as a fraction of its boundary edge length "
+                        f"(default {SURFACE_TOLERANCE:g}: room to square the quads of a curved surface; 0: exactly on "
+                        "it, feature corners fixed)")
     p.add_argument("--time-limit", type=float, default=None, metavar="S",
                    help="seconds for untangling and quality (default: the untangling 60 s, the quality rounds 30 s, the "
                         "last vertex steps 10 s); the certificate always runs")
@@ -159,7 +164,7 @@ def run(args) -> int:
                             min_sj=args.min_sj, max_iter=args.max_iter, time_limit=args.time_limit,
                             feature_angle=args.feature_angle, fallback=args.fallback, rho=args.rho,
                             margin=args.margin, kernel_method=kernel_method, progress=bar, jobs=args.jobs,
-                            scheduler=args.scheduler, callback=best,
+                            scheduler=args.scheduler, callback=best, surface_tolerance=args.surface_tolerance,
                             **({"local": True} if getattr(args, "local", False) else {}))
             return _finish(args, mesh, orient, result, bar, cells)
     except KeyboardInterrupt:

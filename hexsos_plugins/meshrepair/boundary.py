@@ -1,7 +1,9 @@
 """The boundary surface of a volume mesh, its feature edges and corners, and projection back onto it.
 
 Used by the repair with ``boundary="slide"``: boundary vertices may move, but stay on the input's boundary
-surface, vertices on feature edges stay on their feature curves, and feature corners stay where they are.
+surface, vertices on feature edges stay on their feature curves, and feature corners stay where they are; with a
+``tolerance`` > 0 each may also sit off its surface, curve or corner by up to that fraction of its boundary edge
+length (a band: the repair's quality is capped by the surface where it must stay exactly on it).
 
 * Boundary faces: the faces (triangles, quads; corner nodes) of the 3-D cells that belong to one cell only,
   oriented outward for positively oriented cells (:attr:`hexsos_plugins.cells.elements.Element.faces`).
@@ -82,6 +84,7 @@ class BoundaryModel:
     surf_F: np.ndarray  # (T, 3) boundary triangles
     feat_E: np.ndarray  # (E, 2) feature segments
     feature_edges: int
+    tolerance: np.ndarray | None = None  # (B,) the band: how far each may sit off its surface / curve / corner
 
     @property
     def corners(self) -> np.ndarray:
@@ -96,8 +99,9 @@ class BoundaryModel:
                      np.eye(3)[None] - t[:, :, None] * t[:, None, :])
         return Slide(idx=idx, Q=Q, ref=np.array(V[idx], dtype=np.float64), s2=np.maximum(self.size[keep], 1e-300) ** 2)
 
-    def project(self, V, idx=None) -> np.ndarray:
-        """V with the (given, else all) surface and curve vertices moved to the nearest input surface / curve."""
+    def closest(self, V, idx=None) -> np.ndarray:
+        """V with the (given, else all) surface and curve vertices moved to the nearest point of the input surface
+        / curve, and corners to their input position."""
         igl = _igl()
         W = np.array(V, dtype=np.float64, copy=True)
         sel = np.ones(self.vertices.size, dtype=bool) if idx is None else np.isin(self.vertices, idx)
@@ -108,7 +112,27 @@ class BoundaryModel:
             _, _, C = igl.point_mesh_squared_distance(np.ascontiguousarray(W[rows]), self.surf_V,
                                                       np.ascontiguousarray(F, dtype=np.int64))
             W[rows] = C
+        rows = self.vertices[(self.kind == 2) & sel]
+        W[rows] = self.surf_V[rows]
         return W
+
+    def band_width(self) -> np.ndarray:
+        """(B,) how far each boundary vertex may sit off its surface, curve or corner (0: exactly on it)."""
+        return np.zeros(self.vertices.size) if self.tolerance is None else self.tolerance
+
+    def project(self, V, idx=None) -> np.ndarray:
+        """V with the (given, else all) boundary vertices moved back into the band: onto the nearest point of the
+        input surface / curve (corners: their input position) where the band is 0, else toward it until they are
+        at most the band's width from it. Corners move only with a band (without one they are pinned)."""
+        X = np.asarray(V, dtype=np.float64)
+        C = self.closest(X, idx)
+        width = np.zeros(X.shape[0])
+        width[self.vertices] = self.band_width()
+        d = X - C
+        n = np.sqrt((d * d).sum(axis=1))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            keep = np.where(n > width, width / n, 1.0)
+        return C + keep[:, None] * d
 
     def distance(self, V, idx=None) -> np.ndarray:
         """Distance of the boundary vertices (or ``idx``) to the input surface."""
@@ -130,8 +154,10 @@ def _igl():
     return igl
 
 
-def boundary_model(points, cells, *, feature_angle: float = 45.0, suspect=None) -> BoundaryModel:
+def boundary_model(points, cells, *, feature_angle: float = 45.0, suspect=None, tolerance: float = 0.0) -> BoundaryModel:
     """Analyse the boundary of ``cells`` (list of (type, conn)) at ``points`` (the input).
+
+    ``tolerance``: the band (module docstring), a fraction of each boundary vertex's mean boundary edge length.
 
     ``suspect`` (N,) bool, optional: vertices of inverted cells. A boundary face whose vertices are all suspect is
     folded or about to be: its normal says nothing about the surface, so it makes no feature edge and counts in a
@@ -225,4 +251,5 @@ def boundary_model(points, cells, *, feature_angle: float = 45.0, suspect=None) 
     size = ssum[verts] / np.maximum(scnt[verts], 1)
     return BoundaryModel(vertices=verts, kind=kind, normal=normal, tangent=tangent, size=size,
                          surf_V=np.ascontiguousarray(P), surf_F=np.ascontiguousarray(tri),
-                         feat_E=np.ascontiguousarray(feat), feature_edges=int(feat.shape[0]))
+                         feat_E=np.ascontiguousarray(feat), feature_edges=int(feat.shape[0]),
+                         tolerance=float(tolerance) * size)

@@ -26,8 +26,10 @@
    what is left, and the better of the two (certified, else fewer cells not proven valid) is returned.
 
 Boundary: ``"slide"`` (default) keeps boundary vertices on the input's boundary surface, feature-edge vertices
-on their feature curves and pins feature corners (:mod:`hexsos_plugins.meshrepair.boundary`); ``"fixed"`` pins every
-boundary vertex; ``"free"`` lets them move.
+on their feature curves and pins feature corners (:mod:`hexsos_plugins.meshrepair.boundary`), each within a band
+of ``surface_tolerance`` of its boundary edge length (default a tenth; 0: exactly on them, corners fixed); feature
+corners move only in the last vertex steps, within the band; ``"fixed"`` pins every boundary vertex; ``"free"``
+lets them move.
 
 Curved meshes (cells of order 2 or more) and meshes without trilinear hexahedra (tetrahedra, wedges) go to
 :func:`hexsos_plugins.meshrepair.curved.repair_curved` (a barrier on det J's Bernstein coefficients, the boundary
@@ -52,7 +54,7 @@ from ..certify import check, validate_arrays
 from ..cells.elements import ELEMENTS
 from ..errors import InvalidInputError
 from ..cells.quality import IDEAL, LINEAR_TYPES, SAMPLES, summary
-from .options import BOUNDARY_MODES, DEFAULT_MARGIN, DEFAULT_RHO, METHODS, resolve_boundary
+from .options import BOUNDARY_MODES, DEFAULT_MARGIN, DEFAULT_RHO, METHODS, SURFACE_TOLERANCE, resolve_boundary
 from .paper import MEMORY, boundary_vertex_mask, hex_edge_length, repair_hex, repair_paper
 from .result import RepairResult, readonly
 
@@ -278,7 +280,8 @@ def repair(points, hexes, *, cells=None, method: str = "optimize", boundary: str
            max_iter=None, time_limit=None, feature_angle: float = 45.0, rings: int = 2, fallback: bool = True,
            rho: float = DEFAULT_RHO, margin=None, pin_boundary: bool = False, kernel_method: str = "auto",
            relaxation: str = "quad2", progress=None, callback=None, anchor: str = "current", max_steps: int = 50,
-           pinned=None, jobs: int = 1, scheduler=None, local: bool = False) -> RepairResult:
+           pinned=None, jobs: int = 1, scheduler=None, local: bool = False,
+           surface_tolerance: float = SURFACE_TOLERANCE) -> RepairResult:
     """Repair a mesh until every cell is proven valid, raising its minimum scaled Jacobian on the way.
 
     Parameters
@@ -306,6 +309,12 @@ def repair(points, hexes, *, cells=None, method: str = "optimize", boundary: str
     feature_angle : float, keyword-only
         ``boundary="slide"``: boundary edges whose faces' normals differ by more than this (degrees) are
         feature edges. Default 45.
+    surface_tolerance : float, keyword-only
+        ``boundary="slide"``: how far a boundary vertex may end off the input surface (or its feature curve, or
+        its feature corner's position), as a fraction of its mean boundary edge length. Default
+        SURFACE_TOLERANCE = 0.1: a quad on a curved surface cannot be square, and a tenth of an edge lets the
+        last vertex steps square it (module docstring); 0 keeps every boundary vertex exactly on the surface and
+        feature corners where they are.
     rings : int, keyword-only
         Layers of cells around the bad ones that move (default 2).
     fallback : bool, keyword-only
@@ -373,6 +382,13 @@ def repair(points, hexes, *, cells=None, method: str = "optimize", boundary: str
             raise InvalidInputError(f"min_sj: expected a number in (0, 1), found {min_sj!r}") from None
         if not (0.0 < min_sj < 1.0):
             raise InvalidInputError(f"min_sj: expected a number in (0, 1), found {min_sj!r}")
+    try:
+        surface_tolerance = float(surface_tolerance)
+    except (TypeError, ValueError):
+        surface_tolerance = float("nan")
+    if not (0.0 <= surface_tolerance <= 1.0):
+        raise InvalidInputError("surface_tolerance: expected a fraction of the boundary edge length in [0, 1], "
+                                f"found {surface_tolerance!r}")
     if time_limit is not None and not (float(time_limit) > 0):
         raise InvalidInputError(f"time_limit: expected a positive number of seconds, found {time_limit!r}")
     if max_iter is not None and (int(max_iter) != max_iter or max_iter < 0):
@@ -409,7 +425,7 @@ def repair(points, hexes, *, cells=None, method: str = "optimize", boundary: str
         return _Optimize(P0, H, others, pin, boundary=boundary, min_sj=min_sj, max_iter=max_iter,
                          time_limit=time_limit, feature_angle=feature_angle, rings=rings, fallback=fallback, rho=rho,
                          margin=margin, relaxation=relaxation, progress=progress, callback=callback, jobs=jobs,
-                         scheduler=scheduler, local=bool(local)).run()
+                         scheduler=scheduler, local=bool(local), surface_tolerance=surface_tolerance).run()
 
 
 def _other_counts(res):
@@ -510,7 +526,7 @@ def _other_stats(others, o0, o1, hex_status):
 class _Optimize:
     def __init__(self, P0, H, others, pin, *, boundary, min_sj, max_iter, time_limit, feature_angle, rings,
                  fallback, rho, margin, relaxation, progress, callback, jobs, scheduler, local_steps=True,
-                 local=False):
+                 local=False, surface_tolerance=SURFACE_TOLERANCE):
         self.P0, self.H, self.others, self.pin = P0, H, others, pin
         self.boundary, self.min_sj, self.time_limit = boundary, min_sj, time_limit
         self.max_outer = 60 if max_iter is None else int(max_iter)
@@ -521,6 +537,8 @@ class _Optimize:
         self.jobs, self.scheduler = jobs, scheduler
         self.local_steps = local_steps
         self.local = local
+        self.surface_tolerance = float(surface_tolerance)
+        self.band_corners = np.zeros(0, dtype=np.int64)  # feature corners that move within the band (stage 2b)
         self.local_info = {}
         self.history = []
         self.t0 = time.perf_counter()
@@ -534,6 +552,7 @@ class _Optimize:
         from .localopt import local_sweeps
 
         mv = movable.copy()
+        mv[self.band_corners] = True
         for _, conn in others:
             mv[conn.ravel()] = False
         slide = self.boundary == "slide"
@@ -557,6 +576,27 @@ class _Optimize:
         if not info["steps"]:
             return V
         self._step("local", W)
+        return W
+
+    def _into_band(self, V, bm, sizes):
+        """The boundary vertices left outside the band (a step along a feature curve past its bend, a projection
+        that would have lowered the minimum) moved into it, each as far as every cell stays above 95% of the
+        minimum reached (and above ``min_sj`` once reached), the rule of stage 2's last projection."""
+        from . import optimize as opt
+
+        C = bm.closest(V)
+        d = np.sqrt(((V[bm.vertices] - C[bm.vertices]) ** 2).sum(axis=1))
+        out = bm.vertices[d > bm.band_width()]
+        if out.size == 0:
+            return V
+        prob = opt.Problem(V, self.blocks, sizes, np.isin(np.arange(V.shape[0]), out))
+        m_now = prob.min_sj(V)
+        t_keep = 0.95 * m_now
+        if self.min_sj is not None and m_now >= self.min_sj:
+            t_keep = max(t_keep, self.min_sj)
+        W = opt.project_valid(prob, V, bm.project(V, out), out, t=t_keep if t_keep > 0 else None)
+        if not np.array_equal(W, V):
+            self._step("into the band", W)
         return W
 
     def _check(self, V):
@@ -609,10 +649,12 @@ class _Optimize:
             for (_, conn), sj in zip(blocks, cell_scaled_jacobians(P0, blocks)):
                 suspect[conn[sj <= 0].ravel()] = True
             bm = boundary_model(P0, [("hexahedron", H)] + others, feature_angle=self.feature_angle,
-                                suspect=suspect)
+                                suspect=suspect, tolerance=self.surface_tolerance if self.boundary == "slide" else 0.0)
             if self.boundary == "fixed":
                 pin[bm.vertices] = True
             else:
+                if self.surface_tolerance > 0:  # pinned but in the last vertex steps, within the band
+                    self.band_corners = bm.corners[~pin[bm.corners]]
                 pin[bm.corners] = True
         movable = ~pin
         deadline = None if self.time_limit is None else self.t0 + float(self.time_limit)
@@ -641,6 +683,7 @@ class _Optimize:
                 region = _vertices(_dilate([r0.status != 1], [blocks[0]], N, self.rings), [blocks[0]], N)
             pin |= ~region
             movable = ~pin
+            self.band_corners = self.band_corners[region[self.band_corners]]
         V = P0.copy()
         stage_s = {}
         info1 = {"success": True, "outer": 0, "iterations": 0}
@@ -787,6 +830,8 @@ class _Optimize:
                 ts = time.perf_counter()
                 V = self._local(V, movable, bm, others, deadline1)
                 stage_s["local"] = time.perf_counter() - ts
+            if untangled and slide and self.surface_tolerance > 0:
+                V = self._into_band(V, bm, sizes)
         except _Stopped:
             V = self.best[1]
         # stage 3: the certificate

@@ -507,12 +507,15 @@ def _cell_eval(V, conn, m, G, factor, ref, tau, out, E, C, XU, XV, XW, b, eu, ev
 
 
 @njit(cache=True)
-def sweep(V, conn, G, factor, order, ptr, inc, loc, proj, step0, tau, max_steps, cell_sj):
+def sweep(V, conn, G, factor, order, ptr, inc, loc, proj, step0, tau, max_steps, cell_sj, ref, A, width):
     """One pass over the vertices ``order``: each moves by up to ``max_steps`` accepted steps (see the module
     docstring). ``ptr``/``inc``/``loc``: the hexes around each vertex (CSR) and the vertex's node index in each;
     ``proj`` (N, 3, 3) the projector onto each vertex's freedom; ``step0`` (N,) the first trial length (a fraction
-    of the vertex's edge length); ``cell_sj`` (M,) the hexes' least samples, kept up to date. V is updated in
-    place. Returns the number of accepted steps."""
+    of the vertex's edge length); ``cell_sj`` (M,) the hexes' least samples, kept up to date. The band: a vertex
+    with ``width[v]`` finite stays in {x : |A[v] (x - ref[v])| <= width[v]} (``A[v]`` an orthogonal projector:
+    onto the normal of a surface vertex, across a curve's tangent, the identity at a corner): a trial position
+    outside goes to the nearest point inside, and on the band's edge the part of a step leaving it goes. V is
+    updated in place. Returns the number of accepted steps."""
     K = G.shape[0]
     E = np.empty((3, 3))
     C = np.empty((3, 3))
@@ -527,6 +530,7 @@ def sweep(V, conn, G, factor, order, ptr, inc, loc, proj, step0, tau, max_steps,
     x0 = np.empty(3)
     c = np.empty(3)
     ev2 = np.empty(2)
+    r = np.empty(3)
     accepted = 0
     for oi in range(order.shape[0]):
         v = order[oi]
@@ -575,6 +579,18 @@ def sweep(V, conn, G, factor, order, ptr, inc, loc, proj, step0, tau, max_steps,
             d0 = proj[v, 0, 0] * g[0] + proj[v, 0, 1] * g[1] + proj[v, 0, 2] * g[2]
             d1 = proj[v, 1, 0] * g[0] + proj[v, 1, 1] * g[1] + proj[v, 1, 2] * g[2]
             d2 = proj[v, 2, 0] * g[0] + proj[v, 2, 1] * g[1] + proj[v, 2, 2] * g[2]
+            banded = width[v] < np.inf
+            if banded:
+                for a in range(3):
+                    r[a] = (A[v, a, 0] * (V[v, 0] - ref[v, 0]) + A[v, a, 1] * (V[v, 1] - ref[v, 1])
+                            + A[v, a, 2] * (V[v, 2] - ref[v, 2]))
+                rn = np.sqrt(r[0] * r[0] + r[1] * r[1] + r[2] * r[2])
+                if rn > 0.0 and rn >= width[v] * (1.0 - 1e-9):
+                    out = (d0 * r[0] + d1 * r[1] + d2 * r[2]) / rn
+                    if out > 0.0:
+                        d0 -= out * r[0] / rn
+                        d1 -= out * r[1] / rn
+                        d2 -= out * r[2] / rn
             nrm = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
             if not (nrm > 0.0):
                 break
@@ -591,6 +607,16 @@ def sweep(V, conn, G, factor, order, ptr, inc, loc, proj, step0, tau, max_steps,
                 V[v, 0] = x0[0] + h * d0
                 V[v, 1] = x0[1] + h * d1
                 V[v, 2] = x0[2] + h * d2
+                if banded:
+                    for a in range(3):
+                        r[a] = (A[v, a, 0] * (V[v, 0] - ref[v, 0]) + A[v, a, 1] * (V[v, 1] - ref[v, 1])
+                                + A[v, a, 2] * (V[v, 2] - ref[v, 2]))
+                    rn = np.sqrt(r[0] * r[0] + r[1] * r[1] + r[2] * r[2])
+                    if rn > width[v]:
+                        f = 1.0 - width[v] / rn
+                        V[v, 0] -= f * r[0]
+                        V[v, 1] -= f * r[1]
+                        V[v, 2] -= f * r[2]
                 m1 = np.inf
                 s1 = 0.0
                 for j in range(lo, hi):

@@ -4,7 +4,9 @@ After the global stages (untangling, the barrier over a region), what caps the m
 of them with several vertices on the surface. Here each vertex of the hexes below ``min + band`` moves in turn,
 worst first, to raise the least scaled Jacobian sample of the hexes around it (the compiled steps of
 :mod:`hexsos_plugins.meshrepair.kernels`): inside in any direction, on the surface in its input tangent plane, on a feature
-curve along its tangent, feature corners and pinned vertices not at all. No accepted step lowers the mesh's minimum
+curve along its tangent, feature corners and pinned vertices not at all; with a band
+(:attr:`hexsos_plugins.meshrepair.boundary.BoundaryModel.tolerance`), boundary vertices move in any direction but
+stay within the band's width of their surface, curve or corner. No accepted step lowers the mesh's minimum
 or makes a Bernstein coefficient of a hex non-positive, so the stage ends where it started or higher and valid.
 Sweeps repeat until the minimum rises by less than ``min_gain`` in ``patience`` sweeps, or the deadline.
 """
@@ -53,6 +55,35 @@ def _setup(V, H, movable, boundary, step):
         proj[bv[on]] = Q[on]
     ptr, inc, loc = _incidence(H, N)
     return proj, ptr, inc, loc, step * _edge_length(V, H, N)
+
+
+def _band(V, movable, boundary, proj):
+    """The band of each boundary vertex (:attr:`hexsos_plugins.meshrepair.boundary.BoundaryModel.tolerance`) for
+    :func:`hexsos_plugins.meshrepair.kernels.sweep`: (ref (N, 3), A (N, 3, 3), width (N,)), width inf where there is
+    none. A movable boundary vertex with a band moves in any direction (``proj`` set to the identity), its component
+    along A (the surface normal, across the curve, every direction at a corner) within ``width`` of ``ref``, its
+    nearest point on the input surface, curve or corner."""
+    N = V.shape[0]
+    ref = np.array(V, dtype=np.float64, copy=True)
+    A = np.zeros((N, 3, 3))
+    width = np.full(N, np.inf)
+    if boundary is None:
+        return ref, A, width
+    w = boundary.band_width()
+    bv = boundary.vertices
+    on = movable[bv] & (w > 0)
+    if not on.any():
+        return ref, A, width
+    n, t = boundary.normal, boundary.tangent
+    Ab = np.where((boundary.kind == 0)[:, None, None], n[:, :, None] * n[:, None, :],
+                  np.where((boundary.kind == 1)[:, None, None], np.eye(3)[None] - t[:, :, None] * t[:, None, :],
+                           np.eye(3)[None]))
+    idx = bv[on]
+    A[idx] = Ab[on]
+    width[idx] = w[on]
+    proj[idx] = np.eye(3)
+    ref[idx] = boundary.closest(V, idx)[idx]
+    return ref, A, width
 
 
 def _worst_first(H, q, verts, N):
@@ -121,6 +152,7 @@ def local_sweeps(V, H, movable, *, boundary=None, deadline=None, band=0.1, tau=0
     G, factor = SAMPLES["hexahedron"]
     G = np.ascontiguousarray(G)
     proj, ptr, inc, loc, step0 = _setup(V, H, movable, boundary, step)
+    ref, A, width = _band(V, movable, boundary, proj)
     cell_sj = lo.cell_minima(V, H, G, float(factor))
     info = {"sweeps": 0, "steps": 0, "min_before": float(cell_sj.min()) if cell_sj.size else np.inf}
     can = np.abs(proj).sum(axis=(1, 2)) > 0
@@ -137,10 +169,10 @@ def local_sweeps(V, H, movable, *, boundary=None, deadline=None, band=0.1, tau=0
             break
         verts = _worst_first(H, cell_sj, verts, N)  # by the least scaled Jacobian of the hexes around each
         info["steps"] += int(lo.sweep(V, H, G, float(factor), verts, ptr, inc, loc, proj, step0, tau, max_steps,
-                                      cell_sj))
+                                      cell_sj, ref, A, width))
         info["sweeps"] += 1
         if project is not None and info["sweeps"] % project_every == 0:
-            V = _project(project, V, V_last, boundary, H, G, factor, cell_sj)
+            V = _project(project, V, V_last, boundary, H, G, factor, cell_sj, ref, width)
             V_last = V.copy()
         m_new = float(cell_sj.min())
         if target is not None and m_new >= target:
@@ -154,18 +186,22 @@ def local_sweeps(V, H, movable, *, boundary=None, deadline=None, band=0.1, tau=0
         if deadline is not None and time.perf_counter() > deadline:
             break
     if project is not None:
-        V = _project(project, V, V_last, boundary, H, G, factor, cell_sj)
+        V = _project(project, V, V_last, boundary, H, G, factor, cell_sj, ref, width)
     info["min_after"] = float(cell_sj.min()) if cell_sj.size else np.inf
     return V, info
 
 
-def _project(project, V, V_last, boundary, H, G, factor, cell_sj):
+def _project(project, V, V_last, boundary, H, G, factor, cell_sj, ref, width):
+    """``project`` on the boundary vertices moved since ``V_last``; the band's references follow them."""
     from . import kernels as lo
 
-    bv = boundary.vertices[boundary.kind < 2]
+    bv = boundary.vertices
     moved = bv[np.any(V[bv] != V_last[bv], axis=1)]
     if moved.size == 0:
         return V
     W = project(V, moved)
     cell_sj[:] = lo.cell_minima(W, H, G, float(factor))
+    banded = moved[width[moved] < np.inf]
+    if banded.size:
+        ref[banded] = boundary.closest(W, banded)[banded]
     return W
