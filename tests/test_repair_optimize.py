@@ -6,6 +6,8 @@ of the prisms through :data:`hexsos_plugins.cells.elements.ELEMENTS`, the scaled
 """
 
 import json
+import subprocess
+import sys
 
 import meshio
 import numpy as np
@@ -353,3 +355,36 @@ def test_cli_unreachable_target_exits_1_with_a_certified_mesh(tmp_path, capsys):
     o = meshio.read(str(out))
     assert _certified(o.points, o.cells_dict["hexahedron"]) and "hexsos_scaled_jacobian" in o.cell_data
     assert (tmp_path / "c.png").stat().st_size > 5000
+
+
+def _cubed_ball(n=4):
+    """A cube's n^3 grid pushed radially onto the unit ball: valid, but the hexes at the cube's corners have three
+    faces on a smooth sphere, where no quad can be square (input min scaled Jacobian 0.21)."""
+    P, H = structured_grid(n, n, n, size=(2.0, 2.0, 2.0))
+    P = P - 1.0
+    r2, ri = np.linalg.norm(P, axis=1), np.abs(P).max(axis=1)
+    return np.where(r2[:, None] > 0, P * (ri / np.maximum(r2, 1e-300))[:, None], P), H
+
+
+def test_band_around_the_surface_squares_the_boundary_hexes(tmp_path):
+    from hexsos_plugins.meshrepair.boundary import boundary_model
+
+    Q, H = _cubed_ball()
+    on = hs.repair(Q, H, surface_tolerance=0.0)
+    band = hs.repair(Q, H)
+    assert on.success and band.success and _certified(band.points, H)
+    assert band.stats["min_sj_after"] > on.stats["min_sj_after"] + 0.05, (on.stats["min_sj_after"],
+                                                                          band.stats["min_sj_after"])
+    bm = boundary_model(Q, [("hexahedron", H)], tolerance=SURFACE_TOLERANCE)
+    diag = np.linalg.norm(Q.max(0) - Q.min(0))
+    dist = bm.distance(band.points)
+    assert dist.max() > 0.5 * bm.band_width().max()  # off the surface: the room was used
+    assert dist.max() < 0.02 * diag and band.stats["boundary_max_distance"] == pytest.approx(dist.max(), rel=1e-9)
+    with pytest.raises(InvalidInputError, match="surface_tolerance"):
+        hs.repair(Q, H, surface_tolerance=-0.1)
+    src, out = tmp_path / "ball.vtu", tmp_path / "out.vtu"
+    meshio.write(src, meshio.Mesh(Q, [("hexahedron", H)]))
+    p = subprocess.run([sys.executable, "-m", "hexsos_plugins", "repair", str(src), "-o", str(out),
+                        "--surface-tolerance", "2"], capture_output=True, text=True, timeout=300)
+    assert p.returncode == 2 and "Traceback" not in p.stderr and "surface_tolerance" in p.stderr
+    assert len(p.stderr.strip().splitlines()) == 1 and not out.exists()

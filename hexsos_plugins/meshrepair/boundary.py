@@ -69,6 +69,16 @@ class Slide:
     Q: np.ndarray
     ref: np.ndarray
     s2: np.ndarray
+    frames: object = None  # optional callable(V, idx) -> (rows, Q): the normals where the vertices are now
+
+    def follow(self, V):
+        """References and normals moved to where the vertices are in V (after a projection onto the surface)."""
+        self.ref = np.array(V[self.idx], dtype=np.float64)
+        if self.frames is None or self.idx.size == 0:
+            return
+        rows, Q = self.frames(V, self.idx)
+        pos = np.searchsorted(self.idx, rows)
+        self.Q[pos] = Q
 
 
 @dataclass
@@ -97,7 +107,8 @@ class BoundaryModel:
         n, t = self.normal[keep], self.tangent[keep]
         Q = np.where((self.kind[keep] == 0)[:, None, None], n[:, :, None] * n[:, None, :],
                      np.eye(3)[None] - t[:, :, None] * t[:, None, :])
-        return Slide(idx=idx, Q=Q, ref=np.array(V[idx], dtype=np.float64), s2=np.maximum(self.size[keep], 1e-300) ** 2)
+        return Slide(idx=idx, Q=Q, ref=np.array(V[idx], dtype=np.float64), s2=np.maximum(self.size[keep], 1e-300) ** 2,
+                     frames=self.frames)
 
     def closest(self, V, idx=None) -> np.ndarray:
         """V with the (given, else all) surface and curve vertices moved to the nearest point of the input surface
@@ -115,6 +126,36 @@ class BoundaryModel:
         rows = self.vertices[(self.kind == 2) & sel]
         W[rows] = self.surf_V[rows]
         return W
+
+    def frames(self, V, idx):
+        """For the surface and curve vertices among ``idx``: (rows, Q (k, 3, 3)), the projector onto the normal of
+        the input surface triangle nearest to each (curves: across the nearest feature segment), for a penalty
+        that follows a vertex sliding away from where the input's vertex normal was taken."""
+        igl = _igl()
+        rows_out, Q_out = [], []
+        sel = np.isin(self.vertices, idx)
+        for kind, F in ((0, self.surf_F), (1, self.feat_E)):
+            rows = self.vertices[(self.kind == kind) & sel]
+            if rows.size == 0 or F.shape[0] == 0:
+                continue
+            F = np.ascontiguousarray(F, dtype=np.int64)
+            _, I, _ = igl.point_mesh_squared_distance(np.ascontiguousarray(V[rows], dtype=np.float64), self.surf_V, F)
+            I = np.asarray(I, dtype=np.int64).ravel()
+            A = self.surf_V[F[I, 0]]
+            if kind == 0:
+                u = np.cross(self.surf_V[F[I, 1]] - A, self.surf_V[F[I, 2]] - A)
+            else:
+                u = self.surf_V[F[I, 1]] - A
+            n = np.linalg.norm(u, axis=1)
+            ok = n > 0
+            u = u / np.where(ok, n, 1.0)[:, None]
+            outer = u[:, :, None] * u[:, None, :]
+            Q = outer if kind == 0 else np.eye(3)[None] - outer
+            rows_out.append(rows[ok])
+            Q_out.append(Q[ok])
+        if not rows_out:
+            return np.zeros(0, dtype=np.int64), np.zeros((0, 3, 3))
+        return np.concatenate(rows_out), np.concatenate(Q_out)
 
     def band_width(self) -> np.ndarray:
         """(B,) how far each boundary vertex may sit off its surface, curve or corner (0: exactly on it)."""

@@ -579,9 +579,10 @@ class _Optimize:
         return W
 
     def _into_band(self, V, bm, sizes):
-        """The boundary vertices left outside the band (a step along a feature curve past its bend, a projection
-        that would have lowered the minimum) moved into it, each as far as every cell stays above 95% of the
-        minimum reached (and above ``min_sj`` once reached), the rule of stage 2's last projection."""
+        """The boundary vertices left outside the band (stage 2's penalty is soft; a step along a feature curve
+        past its bend) moved into it, each as far as every cell stays above 95% of the minimum reached (and above
+        ``min_sj`` once reached), the rule of stage 2's last projection. Pulling them in regardless, then vertex
+        steps, was measured worse (the bunny 0.601 -> 0.583, a cubed ball 0.857 -> 0.748)."""
         from . import optimize as opt
 
         C = bm.closest(V)

@@ -635,6 +635,6 @@ def _project_feasible(prob, x, t, project):
     Vn = project_valid(prob, V, W, moved, t)
     if not np.isfinite(prob.barrier_energy(Vn[prob.free].ravel(), t, grad=False)[0]):
         return x
-    if prob.slide is not None:  # the penalty's references follow the projected positions
-        prob.slide.ref = Vn[prob.slide.idx].copy()
+    if prob.slide is not None:  # the penalty's references (and normals) follow the projected positions
+        prob.slide.follow(Vn)
     return Vn[prob.free].ravel()
