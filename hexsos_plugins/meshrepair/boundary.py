@@ -161,14 +161,16 @@ class BoundaryModel:
         """(B,) how far each boundary vertex may sit off its surface, curve or corner (0: exactly on it)."""
         return np.zeros(self.vertices.size) if self.tolerance is None else self.tolerance
 
-    def project(self, V, idx=None) -> np.ndarray:
+    def project(self, V, idx=None, band=True) -> np.ndarray:
         """V with the (given, else all) boundary vertices moved back into the band: onto the nearest point of the
         input surface / curve (corners: their input position) where the band is 0, else toward it until they are
-        at most the band's width from it. Corners move only with a band (without one they are pinned)."""
+        at most the band's width from it (``band=False``: onto it). Corners move only with a band (without one
+        they are pinned)."""
         X = np.asarray(V, dtype=np.float64)
         C = self.closest(X, idx)
         width = np.zeros(X.shape[0])
-        width[self.vertices] = self.band_width()
+        if band:
+            width[self.vertices] = self.band_width()
         d = X - C
         n = np.sqrt((d * d).sum(axis=1))
         with np.errstate(divide="ignore", invalid="ignore"):
