@@ -289,3 +289,43 @@ def test_safe_step_filter_in_pvpython(tmp_path):
     xyz = world_points(P + w["t"] * D, [("hexahedron", H[w["cell"]][None])], np.asarray(w["point"])[None])
     assert np.allclose(res["witness_xyz"], xyz)
     assert res["bad"]["cells"] == 0
+
+
+@pytest.mark.skipif(shutil.which("paraview") is None or shutil.which("xvfb-run") is None,
+                    reason="the ParaView GUI and xvfb-run are needed")
+def test_paraview_gui_draws_curved_lagrange_cells_in_the_status_colours(tmp_path):
+    """``hexsos paraview`` on a .vtu of VTK Lagrange cells of order 3 (a Gmsh mixed mesh, curved and perturbed):
+    ParaView's own GUI counts what hexsos.check finds on the same file, and its picture shows the invalid cells in
+    the status colour with their fold points; the same mesh neither curved nor perturbed shows none."""
+    from comparison.curved_mixed import write_mixed
+    from PIL import Image
+
+    def run(noise, curve, name):
+        msh, vtu, png = tmp_path / f"{name}.msh", tmp_path / f"{name}.vtu", tmp_path / f"{name}.png"
+        write_mixed(msh, 3, noise=noise, curve=curve)
+        hs.write(hs.read(msh), vtu)
+        mesh = hs.read(vtu)
+        assert {n for n, _ in mesh.cells} >= {"VTK_LAGRANGE_HEXAHEDRON", "VTK_LAGRANGE_TETRAHEDRON",
+                                              "VTK_LAGRANGE_WEDGE"} or {n for n, _ in mesh.cells} >= {
+                                                  "hexahedron64", "tetra20", "wedge40"}
+        expected = hs.check(mesh.points, mesh.cells).counts()
+        proc = subprocess.run(["xvfb-run", "-a", sys.executable, "-m", "hexsos_plugins", "paraview", str(vtu),
+                               "--screenshot", str(png), "--exit-after", "--json"], capture_output=True, text=True,
+                              timeout=300, cwd=tmp_path)
+        line = [x for x in proc.stdout.splitlines() if x.startswith("{")][-1]
+        (m,) = json.loads(line)["meshes"]
+        assert (m["valid"], m["invalid"], m["not_checked"]) == (expected["valid"], expected["invalid"], 0), (
+            m, expected)
+        assert m["fold_points"] == expected["invalid"] and proc.returncode == (1 if expected["invalid"] else 0)
+        a = np.asarray(Image.open(png).convert("RGB")).astype(int)
+        r, g, b = a[..., 0], a[..., 1], a[..., 2]
+        left = slice(0, int(0.75 * a.shape[1]))  # the legend sits at the right
+        red = ((r > 80) & (r > 1.8 * g) & (r > 1.8 * b))[:, left].sum()
+        fold = (a.max(axis=2) < 45)[:, left].sum()
+        drawn = (np.abs(a - a[0, 0]).max(axis=2) > 12)[:, left].mean()
+        return expected["invalid"], red, fold, drawn
+
+    bad, red, fold, drawn = run(0.04, 0.03, "perturbed")
+    assert bad > 10 and red > 5000 and fold > 200 and drawn > 0.1, (bad, red, fold, drawn)
+    bad, red, fold, drawn = run(0.0, 0.0, "straight")
+    assert bad == 0 and red == 0 and fold == 0 and drawn > 0.1, (bad, red, fold, drawn)
