@@ -529,3 +529,66 @@ def test_vtk_reader_only_where_it_pays(tmp_path, monkeypatch):
     assert out.stdout.split() == ["meshio", "False"]
     monkeypatch.setattr("hexsos_plugins.io.readers.VTK_MIN_BYTES", 0)
     assert hio.read(path).reader == "vtk"  # negative case: above the threshold VTK reads it
+
+
+def test_legacy_vtk_lagrange_cells_round_trip_and_vtk_sees_the_same_cells(tmp_path):
+    """Orders 3 and 4 through legacy .vtk: hexsos writes version 4.2 with the Lagrange hexahedron in VTK's old node
+    order, which VTK's legacy reader converts (it did not: VTK's det J of a written hexahedron125 differed from
+    hexsos' by 0.04); hexsos reads 4.2 files (old order) and VTK's own 5.1 files (current order) back to the same
+    cells, by its own reader and by VTK's."""
+    import hexsos_plugins as hs
+    from comparison import lagrange_oracle as LO
+    from comparison.curved_mixed import write_mixed
+    from hexsos_plugins.io.readers.legacy_vtk import read_legacy_vtk
+    from vtkmodules.util.numpy_support import vtk_to_numpy
+    from vtkmodules.vtkIOLegacy import vtkUnstructuredGridReader, vtkUnstructuredGridWriter
+
+    def dets(mesh, names):
+        out = {}
+        for t, c in mesh.cells:
+            if t in names:
+                d = ELEMENTS[t].det(mesh.points[c], LO.domain_points(t, 6, seed=2))
+                out[t] = np.concatenate([out[t], d]) if t in out else d
+        return {t: np.sort(d.ravel()) for t, d in out.items()}
+
+    for order in (3, 4):
+        src = write_mixed(tmp_path / f"m{order}.msh", order, noise=0.02)
+        m = hs.read(src)
+        names = {t for t, _ in m.cells if ELEMENTS[t].lagrange}
+        assert any(ELEMENTS[t].domain == "cube" for t in names) and len(names) == 3
+        ref = dets(m, names)
+        legacy = tmp_path / f"m{order}.vtk"
+        hs.write(m, legacy)
+        assert legacy.read_bytes().startswith(b"# vtk DataFile Version 4.2")
+        # VTK's legacy reader: the hexahedra hexsos checked
+        r = vtkUnstructuredGridReader()
+        r.SetFileName(str(legacy))
+        r.Update()
+        g = r.GetOutput()
+        types = np.array([g.GetCellType(i) for i in range(g.GetNumberOfCells())])
+        P = vtk_to_numpy(g.GetPoints().GetData())
+        hexname = next(t for t in names if ELEMENTS[t].domain == "cube")
+        ids = np.flatnonzero(types == 72)
+        conn = np.array([[g.GetCell(int(i)).GetPointId(k) for k in range(ELEMENTS[hexname].n_nodes)] for i in ids])
+        pc = LO.domain_points(hexname, 40, seed=3)
+        blk = next(c for t, c in m.cells if t == hexname)
+        ours = ELEMENTS[hexname].det(m.points[blk], pc)
+        assert np.allclose(LO.vtk_det(hexname, P[conn], pc), ours, rtol=1e-8, atol=1e-8)
+        # back through hexsos' own reader (4.2: old order converted) and through VTK's writer's 5.1 file
+        v51 = tmp_path / f"m{order}_51.vtk"
+        w = vtkUnstructuredGridWriter()
+        w.SetInputData(g)
+        w.SetFileName(str(v51))
+        w.Write()
+        assert v51.read_bytes().startswith(b"# vtk DataFile Version 5.1")
+        for path in (legacy, v51):
+            back = read_legacy_vtk(path.read_bytes(), path)
+            got = dets(Mesh.from_meshio(back), names)
+            for t in names:
+                assert np.allclose(got[t], ref[t], rtol=1e-9, atol=1e-9), (path.name, t)
+            assert {b.type for b in back.cells} >= names
+        # the old-order conversion is needed: without it the 4.2 file's hexahedra are other cells
+        raw = legacy.read_bytes().replace(b"Version 4.2", b"Version 5.1", 1)
+        wrong = read_legacy_vtk(raw, legacy)
+        wb = next(b.data for b in wrong.cells if b.type == hexname)
+        assert not np.allclose(ELEMENTS[hexname].det(wrong.points[wb], pc), ours, rtol=1e-6, atol=1e-6)

@@ -26,7 +26,10 @@ their 5 corners (with a note). VTK's Lagrange hexahedron changed its node order 
 nodes of edges 10 and 11, (2, 6) and (3, 7), exchanged); VTK's XML reader converts files of older versions. meshio
 writes version 0.1 and reads the nodes as they are: so a Lagrange hexahedron goes into a version-0.1 file in the
 old order (:func:`fix_write_order`) and comes out of one (``vtu_version`` below 2.2, :func:`fix_read_order`)
-back in the current one; measured with VTK 9.7's reader, which then sees the registry's cell.
+back in the current one; measured with VTK 9.7's reader, which then sees the registry's cell. VTK's legacy reader
+does the same for files of version below 5.1: hexsos writes legacy 4.2, so the old order goes there too, and
+hexsos's legacy reader (:mod:`hexsos_plugins.io.readers.legacy_vtk`, meshio reads no Lagrange cell from a legacy
+file) converts by the file's version.
 
 Imports the cells wing only; used by the readers and the writers alike.
 """
@@ -237,7 +240,8 @@ def fix_write_order(mesh: meshio.Mesh, fmt: str) -> meshio.Mesh:
     the file comes out in the format's own order."""
     if fmt in _VTK_FORMATS:
         _permute(mesh, "wedge", WEDGE_SWAP)
-        if fmt == "vtu":  # meshio writes VTU version 0.1: the Lagrange hexahedron's old order (the swap is an involution)
+        if fmt in ("vtu", "vtk42"):  # VTU version 0.1 and legacy 4.2 (meshio's): the Lagrange hexahedron's old
+            # order, which VTK's readers convert (the swap is an involution)
             for name, perm in LEGACY_VTU_HEX.items():
                 _permute(mesh, name, perm)
         for block in mesh.cells:

@@ -5,7 +5,10 @@ as quads; text after the data is ignored. (meshio's 5.1 reader does not fail on 
 silently keeps their last 4 nodes as a tetra; a 5.x file that meshio returns with tetrahedra is therefore
 read again here.) Gmsh 4.15 writes its quadratic pyramids typed 14 with 13 or 14 nodes, in Gmsh's node
 order: they are read as ``pyramid13`` (reordered to VTK's) / ``pyramid14`` (Gmsh's order, as meshio keeps it).
-Other cells keep the file's node order, which is VTK's (wedges included: no swap).
+Other cells keep the file's node order, which is VTK's (wedges included: no swap). VTK's Lagrange cells (71
+tetrahedra, 72 hexahedra, 73 wedges) are read as the registry's type of their node count (``tetra20``,
+``hexahedron64``, ...); a Lagrange hexahedron in a file of version below 5.1 is in VTK's old node order (the inner
+nodes of edges 10 and 11 exchanged), which VTK's own legacy reader converts and so does this one.
 """
 
 from __future__ import annotations
@@ -16,6 +19,7 @@ import meshio
 import numpy as np
 
 from ...cells.elements import ELEMENTS
+from ..meshio_conventions import LEGACY_VTU_HEX
 from .common import ParseError, make_block
 from .tokens import Cursor, is_number, numbers
 
@@ -43,6 +47,10 @@ _VTK_CELLS[_GMSH_PYRAMID14] = ("pyramid14", 14)
 _GMSH_PYRAMID13 = -13  # Gmsh's 13-node pyramid typed 14, in Gmsh's node order
 _VTK_CELLS[_GMSH_PYRAMID13] = ("pyramid13", 13)
 _VTK_VARIABLE = {2: "poly_vertex", 4: "poly_line", 6: "triangle_strip", 42: "polyhedron"}
+# VTK's Lagrange cells: one type for every order; the registry's type by node count
+_VTK_LAGRANGE = {71: "tet", 72: "cube", 73: "prism"}
+_LAGRANGE_BY_SIZE = {(t, el.n_nodes): name for t, dom in _VTK_LAGRANGE.items() for name, el in ELEMENTS.items()
+                     if el.lagrange and el.domain == dom}
 _PIXEL_TO_QUAD = np.array([0, 1, 3, 2])
 
 
@@ -70,6 +78,10 @@ class _VtkReader:
         first = cur.rest_of_line()
         if not first.startswith("# vtk DataFile Version"):
             raise ParseError(f"expected '# vtk DataFile Version x.x' on line 1, found {first[:40]!r}")
+        try:
+            version = tuple(int(v) for v in first.split()[-1].split(".")[:2])
+        except ValueError:
+            version = (0, 0)
         cur.rest_of_line()  # title
         kind, line = cur.next_line()
         if kind is None or kind.upper() not in ("ASCII", "BINARY"):
@@ -158,7 +170,7 @@ class _VtkReader:
         for name, arr in cell_data.items():
             if len(arr) != len(types):
                 raise ParseError(f"cell data {name!r} has {len(arr)} values for {len(types)} cells")
-        cells, cd = vtk_blocks(conn, offsets, types, cell_data)
+        cells, cd = vtk_blocks(conn, offsets, types, cell_data, old_hex_order=version < (5, 1))
         return meshio.Mesh(points, cells, point_data=point_data, cell_data=cd, field_data=field_data)
 
     def _attribute(self, key, words, n, line):
@@ -230,8 +242,10 @@ def _legacy_cells(raw: np.ndarray, n: int, line: int):
     return raw[keep], offsets
 
 
-def vtk_blocks(conn, offsets, types, cell_data):
-    """meshio cell blocks (runs of one type and size) from VTK arrays; 8-node type-10 cells become hexahedra."""
+def vtk_blocks(conn, offsets, types, cell_data, *, old_hex_order=False):
+    """meshio cell blocks (runs of one type and size) from VTK arrays; 8-node type-10 cells become hexahedra;
+    Lagrange cells the registry's type of their node count (``old_hex_order``: hexahedra in VTK's order before
+    legacy version 5.1, converted)."""
     n = len(types)
     sizes = np.diff(offsets)
     if len(offsets) and (offsets[0] != 0 or offsets[-1] != len(conn) or (sizes < 0).any()):
@@ -243,6 +257,14 @@ def vtk_blocks(conn, offsets, types, cell_data):
     types[(types == 14) & (sizes == 14)] = _GMSH_PYRAMID14
     for t in np.unique(types):
         t = int(t)
+        if t in _VTK_LAGRANGE:
+            bad = (types == t) & ~np.isin(sizes, [k for (u, k) in _LAGRANGE_BY_SIZE if u == t])
+            if bad.any():
+                i = int(np.flatnonzero(bad)[0])
+                known = sorted(k for (u, k) in _LAGRANGE_BY_SIZE if u == t)
+                raise ParseError(f"cell {i} has VTK cell type {t} (a Lagrange {_VTK_LAGRANGE[t]} cell) with "
+                                 f"{int(sizes[i])} nodes; hexsos knows these cells with {known} nodes (orders 3-5)")
+            continue
         if t in _VTK_VARIABLE or (t not in _VTK_CELLS and t != 7):
             i = int(np.flatnonzero(types == t)[0])
             name = _VTK_VARIABLE.get(t, "unknown")
@@ -264,6 +286,11 @@ def vtk_blocks(conn, offsets, types, cell_data):
         data = conn[offsets[s] : offsets[s] + (e - s) * k].reshape(e - s, k)  # a run of one size is contiguous
         if t == 7:
             cells.append(make_block("polygon", data, 2))
+        elif t in _VTK_LAGRANGE:
+            name = _LAGRANGE_BY_SIZE[(t, k)]
+            if old_hex_order and name in LEGACY_VTU_HEX:
+                data = data[:, LEGACY_VTU_HEX[name]]
+            cells.append(make_block(name, data))
         else:
             ctype = _VTK_CELLS[t][0]
             if t == 8:

@@ -13,8 +13,10 @@ which is the file's (VTK's) here and meshio's mirror there (see :mod:`hexsos_plu
 * point, cell and field data by name, shape (n,) for one component, (n, k) for k.
 
 Any message VTK's readers log (they are captured, never printed), a cell type outside the fixed-size linear and
-quadratic ones and polygons (polyhedra, Lagrange cells, strips), or a non-numeric array makes it decline, and
-the next reader (meshio, then hexsos's tolerant legacy reader) is tried.
+quadratic ones, VTK's Lagrange cells of orders 3-5 and polygons (polyhedra, strips, Lagrange cells of other
+orders), or a non-numeric array makes it decline, and the next reader (meshio, then hexsos's tolerant legacy
+reader) is tried. VTK's readers hand Lagrange hexahedra of old files over in the current node order: they are
+taken as they come.
 """
 
 from __future__ import annotations
