@@ -173,7 +173,9 @@ def local_sweeps(V, H, movable, *, boundary=None, deadline=None, band=0.1, tau=0
         m = float(cell_sj.min())
         if target is not None and m >= target:
             break
-        low = cell_sj < m + band
+        # the hexes near the minimum, within ``band`` or half the way left to 1, whichever is less: near 1 every
+        # hex is within 0.1 of it (a 32,000-hex graded solid at 0.989: 0.4 s a sweep over all of them for 0.006)
+        low = cell_sj < m + min(band, 0.5 * (1.0 - m))
         verts = np.unique(H[low].ravel())
         verts = verts[can[verts]]
         if verts.size == 0:
