@@ -129,7 +129,7 @@ def test_stress_test_untangled_certified_quality_and_boundary_on_surface(graded)
     sj = scaled_jacobian(r.points, H)
     assert sj.min() == pytest.approx(r.stats["min_sj_after"]) and sj.min() > 0.3
     assert r.stats["invalid_before"] == int((r0.status == 0).sum()) and r.stats["invalid_after"] == 0
-    # sliding: boundary vertices within the band (a tenth of their boundary edge length) of the input's boundary
+    # sliding: boundary vertices within the band (SURFACE_TOLERANCE of their boundary edge length) of the input's boundary
     # surface (the noise left the boundary in place), feature corners within it of where they were
     bm = boundary_model(Q, [("hexahedron", H)], tolerance=SURFACE_TOLERANCE)
     diag = np.linalg.norm(Q.max(0) - Q.min(0))
@@ -357,9 +357,9 @@ def test_cli_unreachable_target_exits_1_with_a_certified_mesh(tmp_path, capsys):
     assert (tmp_path / "c.png").stat().st_size > 5000
 
 
-def _cubed_ball(n=4):
+def _cubed_ball(n=2):
     """A cube's n^3 grid pushed radially onto the unit ball: valid, but the hexes at the cube's corners have three
-    faces on a smooth sphere, where no quad can be square (input min scaled Jacobian 0.21)."""
+    faces on a smooth sphere, where no quad can be square (n = 2: input min scaled Jacobian 0.67)."""
     P, H = structured_grid(n, n, n, size=(2.0, 2.0, 2.0))
     P = P - 1.0
     r2, ri = np.linalg.norm(P, axis=1), np.abs(P).max(axis=1)
@@ -373,13 +373,17 @@ def test_band_around_the_surface_squares_the_boundary_hexes(tmp_path):
     on = hs.repair(Q, H, surface_tolerance=0.0)
     band = hs.repair(Q, H)
     assert on.success and band.success and _certified(band.points, H)
-    assert band.stats["min_sj_after"] > on.stats["min_sj_after"] + 0.03, (on.stats["min_sj_after"],
+    assert band.stats["min_sj_after"] > on.stats["min_sj_after"] + 0.02, (on.stats["min_sj_after"],
                                                                           band.stats["min_sj_after"])
     bm = boundary_model(Q, [("hexahedron", H)], tolerance=SURFACE_TOLERANCE)
     diag = np.linalg.norm(Q.max(0) - Q.min(0))
     dist = bm.distance(band.points)
-    assert dist.max() > 0.5 * bm.band_width().max()  # off the surface: the room was used
-    assert dist.max() < 0.02 * diag and band.stats["boundary_max_distance"] == pytest.approx(dist.max(), rel=1e-9)
+    width = bm.band_width()
+    assert dist.max() > 0.5 * width.max()  # off the surface: the room was used
+    # and no further, up to the band's linearization (a vertex step keeps to the band around the tangent plane at
+    # the vertex's nearest point; the coarse sphere curves away from it by a few percent of the band)
+    assert (dist <= 1.1 * width).all(), (dist / width).max()
+    assert band.stats["boundary_max_distance"] == pytest.approx(dist.max(), rel=1e-9)
     with pytest.raises(InvalidInputError, match="surface_tolerance"):
         hs.repair(Q, H, surface_tolerance=-0.1)
     src, out = tmp_path / "ball.vtu", tmp_path / "out.vtu"
