@@ -792,25 +792,99 @@ def _refine(b, err, level_err, tol, upper, argmin, max_depth, max_iter, S, Snz, 
     return lower, upper, maxd, upper - lower <= tol, boxes
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def _bisect(coef, lo, hi, e, bptr, bidx, tri):
     """The two children of a tetrahedral box (one tet factor) bisected at the midpoint of its edge e: every line
     of coefficients along the edge (bidx[e, bptr[e, q]:bptr[e, q + 1]], ordered by the exponent of the edge's
     second vertex) halved by de Casteljau at 1/2 (each step averages two numbers: r roundings for a line of
     degree r, no growth), the left halves into lo (the child keeping the edge's first vertex), the right halves
-    into hi. O(n p) operations for n coefficients of degree p, against O(n^2) for a dense child matrix."""
-    for q in range(bptr.shape[1] - 1):
-        p0 = bptr[e, q]
-        r = bptr[e, q + 1] - p0 - 1
-        for s in range(r + 1):
-            tri[s] = coef[bidx[e, p0 + s]]
-        lo[bidx[e, p0]] = tri[0]
-        hi[bidx[e, p0 + r]] = tri[r]
-        for level in range(1, r + 1):
-            for s in range(r - level + 1):
-                tri[s] = 0.5 * (tri[s] + tri[s + 1])
-            lo[bidx[e, p0 + level]] = tri[0]
-            hi[bidx[e, p0 + r - level]] = tri[r - level]
+    into hi; returns the smallest coefficient of each child. O(n p) operations for n coefficients of degree p,
+    against O(n^2) for a dense child matrix; lines of degree <= 2 (most of them) written out, the same steps."""
+    ix = bidx[e]
+    pt = bptr[e]
+    mlo = np.inf
+    mhi = np.inf
+    for q in range(pt.shape[0] - 1):
+        p0 = pt[q]
+        r = pt[q + 1] - p0 - 1
+        if r == 0:
+            i0 = ix[p0]
+            a = coef[i0]
+            lo[i0] = a
+            hi[i0] = a
+            if a < mlo:
+                mlo = a
+            if a < mhi:
+                mhi = a
+        elif r == 1:
+            i0 = ix[p0]
+            i1 = ix[p0 + 1]
+            a = coef[i0]
+            c = coef[i1]
+            m = 0.5 * (a + c)
+            lo[i0] = a
+            lo[i1] = m
+            hi[i0] = m
+            hi[i1] = c
+            if a < mlo:
+                mlo = a
+            if m < mlo:
+                mlo = m
+            if m < mhi:
+                mhi = m
+            if c < mhi:
+                mhi = c
+        elif r == 2:
+            i0 = ix[p0]
+            i1 = ix[p0 + 1]
+            i2 = ix[p0 + 2]
+            a = coef[i0]
+            bb = coef[i1]
+            c = coef[i2]
+            m1 = 0.5 * (a + bb)
+            m2 = 0.5 * (bb + c)
+            mm = 0.5 * (m1 + m2)
+            lo[i0] = a
+            lo[i1] = m1
+            lo[i2] = mm
+            hi[i0] = mm
+            hi[i1] = m2
+            hi[i2] = c
+            if a < mlo:
+                mlo = a
+            if m1 < mlo:
+                mlo = m1
+            if mm < mlo:
+                mlo = mm
+            if mm < mhi:
+                mhi = mm
+            if m2 < mhi:
+                mhi = m2
+            if c < mhi:
+                mhi = c
+        else:
+            for s in range(r + 1):
+                tri[s] = coef[ix[p0 + s]]
+            v = tri[0]
+            lo[ix[p0]] = v
+            if v < mlo:
+                mlo = v
+            v = tri[r]
+            hi[ix[p0 + r]] = v
+            if v < mhi:
+                mhi = v
+            for level in range(1, r + 1):
+                for s in range(r - level + 1):
+                    tri[s] = 0.5 * (tri[s] + tri[s + 1])
+                v = tri[0]
+                lo[ix[p0 + level]] = v
+                if v < mlo:
+                    mlo = v
+                v = tri[r - level]
+                hi[ix[p0 + r - level]] = v
+                if v < mhi:
+                    mhi = v
+    return mlo, mhi
 
 
 @njit(cache=True, nogil=True)
@@ -870,7 +944,7 @@ def _refine_simplex(b, err, level_err, tol, upper, argmin, max_depth, max_iter, 
                 e = q
         ei = 0 if e < 3 else (1 if e < 5 else 2)
         ej = e + 1 if e < 3 else (e - 1 if e < 5 else 3)
-        _bisect(bc[bi], kids[0], kids[1], e, bptr, bidx, tri)
+        mlo, mhi = _bisect(bc[bi], kids[0], kids[1], e, bptr, bidx, tri)
         for k in range(4):
             for a in range(3):
                 pv[k, a] = bv[bi, k, a]
@@ -892,11 +966,7 @@ def _refine_simplex(b, err, level_err, tol, upper, argmin, max_depth, max_iter, 
         e_d = err + d * level_err
         for c in range(2):
             boxes += 1
-            cl = np.inf
-            for i in range(nb):
-                if kids[c, i] < cl:
-                    cl = kids[c, i]
-            cl -= e_d
+            cl = (mlo if c == 0 else mhi) - e_d
             if cl >= upper - tol:
                 if cl < pruned:
                     pruned = cl
@@ -1332,7 +1402,9 @@ def run_chunk(points, conn, ids, start, stop, cptr, cidx_, cval, col_a, col_b, c
                                                              TWd, tloc, TF3, TF33, TI3)
             if depth == 0:
                 depth = 1  # the point may have left the root's vertices: evaluated, not a coefficient
-            if upper < value:  # the search found a lower vertex than the polished point: polish from there
+            # the search found a lower vertex than the polished point: polish from there (a box vertex is exact
+            # to 53 bits of depth; beyond, a rounded midpoint might leave the element: then it is not used)
+            if upper < value and _inside(G, h, x):
                 _polish(b, x, Mptr, Midx, Mval, exps, G, h, polish_iter, st3, pc, pw, Q, Z, Hr, Lc, v3, g3, H3, gr, y3,
                         xs, xt)
                 v1 = _eval_bernstein(b, x, fdim, fslot, fexp, fcoef, sizes, W, xs)
