@@ -28,7 +28,8 @@ closed formulas, :func:`factor_tables`, not by inverting a Vandermonde matrix.)
 the triangle and constant in t.) Every value on the element is a convex combination of the coefficients, so
 their minimum bounds det J from below, and the coefficients at the element's vertices are values;
 subdividing (de Casteljau: lines in halves, triangles and tetrahedra into 4 and 8 by their edge midpoints)
-gives the children's coefficients by fixed matrices with non-negative dyadic entries whose rows sum to 1.
+gives the children's coefficients by fixed matrices with non-negative dyadic entries whose rows sum to 1 (the
+compiled kernel bisects tetrahedra instead, along the lines of :func:`edge_lines`: the same kind of averages).
 
 How the coefficients are computed (:func:`formulation`): the geometry is a Bernstein map too (its control
 points are fixed dyadic combinations of the nodes; serendipity cells' maps lie in the complete space), so each
