@@ -322,7 +322,7 @@ def test_compiled_bisection_stays_within_its_rounding_bound(name):
         for d in range(1, 31):
             e = int(rng.integers(6))
             lo, hi, tri = np.empty(t.nb), np.empty(t.nb), np.empty(t.nb)
-            mlo, mhi = src._bisect(fl, lo, hi, e, t.bptr, t.bidx, tri)
+            mlo, mhi = src.bisect_tet(fl, lo, hi, e, t.bptr, t.bidx, tri)
             assert mlo == lo.min() and mhi == hi.min()
             elo, ehi = bisect_exact(ex, p, e)
             fl, ex = (lo, elo) if rng.integers(2) else (hi, ehi)

@@ -793,7 +793,7 @@ def _refine(b, err, level_err, tol, upper, argmin, max_depth, max_iter, S, Snz, 
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _bisect(coef, lo, hi, e, bptr, bidx, tri):
+def bisect_tet(coef, lo, hi, e, bptr, bidx, tri):
     """The two children of a tetrahedral box (one tet factor) bisected at the midpoint of its edge e: every line
     of coefficients along the edge (bidx[e, bptr[e, q]:bptr[e, q + 1]], ordered by the exponent of the edge's
     second vertex) halved by de Casteljau at 1/2 (each step averages two numbers: r roundings for a line of
@@ -892,7 +892,7 @@ def _refine_simplex(b, err, level_err, tol, upper, argmin, max_depth, max_iter, 
                     bdepth, kids, pv, tri):
     """Best-first branch-and-bound of a cell whose det J is one tet factor (the tetrahedra), by bisection: the
     chosen box (smallest bound) is cut in two at the midpoint of its longest edge (in reference coordinates)
-    by :func:`_bisect`. The same rules as :func:`_refine` otherwise: a box's bound is its smallest coefficient
+    by :func:`bisect_tet`. The same rules as :func:`_refine` otherwise: a box's bound is its smallest coefficient
     minus err + depth level_err (a bisection's roundings, at most p U scale + p eta / 2 per level, are within
     level_err, which the 8-way split's matrices need), the midpoint's coefficient is a value (the vertices of
     a box are values: its children's other vertices are their parent's); boxes whose bound is at least
@@ -944,7 +944,7 @@ def _refine_simplex(b, err, level_err, tol, upper, argmin, max_depth, max_iter, 
                 e = q
         ei = 0 if e < 3 else (1 if e < 5 else 2)
         ej = e + 1 if e < 3 else (e - 1 if e < 5 else 3)
-        mlo, mhi = _bisect(bc[bi], kids[0], kids[1], e, bptr, bidx, tri)
+        mlo, mhi = bisect_tet(bc[bi], kids[0], kids[1], e, bptr, bidx, tri)
         for k in range(4):
             for a in range(3):
                 pv[k, a] = bv[bi, k, a]
