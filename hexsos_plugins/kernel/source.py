@@ -893,10 +893,16 @@ def _refine_simplex(b, err, level_err, tol, upper, argmin, max_depth, max_iter, 
     """Best-first branch-and-bound of a cell whose det J is one tet factor (the tetrahedra), by bisection: the
     chosen box (smallest bound) is cut in two at the midpoint of its longest edge (in reference coordinates)
     by :func:`bisect_tet`. The same rules as :func:`_refine` otherwise: a box's bound is its smallest coefficient
-    minus err + depth level_err (a bisection's roundings, at most p U scale + p eta / 2 per level, are within
-    level_err, which the 8-way split's matrices need), the midpoint's coefficient is a value (the vertices of
-    a box are values: its children's other vertices are their parent's); boxes whose bound is at least
-    ``upper - tol`` are pruned. bv (cap, 4, 3) holds each box's vertices (slot k: barycentric vertex k)."""
+    minus err + depth level_err, the midpoint's coefficient is a value (the vertices of a box are values: its
+    children's other vertices are their parent's); boxes whose bound is at least ``upper - tol`` are pruned.
+    bv (cap, 4, 3) holds each box's vertices (slot k: barycentric vertex k).
+
+    Rounding: a level rounds each coefficient at most p times (degree p), each time by at most U M + eta / 2
+    (M the largest |coefficient| then; averaging does not grow earlier errors), so by p (U M + eta / 2). Every
+    coefficient is within err + depth level_err of a convex combination of the exact root coefficients, so M <=
+    scale + err + depth level_err; and a cell is refined only while err < 2 scale / 3 (else tol >= 4 err closes
+    its root bracket: max b - min b <= 2 scale <= 3 err), so M < 1.7 scale and p (U M + eta / 2) is below
+    level_err = 2 (n + 2) U scale + 16 n eta (n > p coefficients), the 8-way split's bound."""
     nb = b.shape[0]
     cap = blow.shape[0]
     for i in range(nb):
