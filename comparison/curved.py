@@ -1,6 +1,6 @@
 """Curved cells of orders 3-5 against Gmsh's minDetJac and VTK's Lagrange cells (part of experiment 8).
 
-    python -m comparison.curved [--quick | --tiny] [--out DIR]
+    python -m comparison.curved [--quick | --tiny] [--out DIR] [--types tetra20,tetra35 | --types tet]
 
 Per type and order (tetrahedra, hexahedra, prisms, pyramids of orders 3, 4, 5): random cells (the straight
 reference cell, every node moved by Gaussian noise of sigma s / p^2, two levels: mostly valid and about half
@@ -13,6 +13,9 @@ thread each, best of ``repeat``:
   often Gmsh's bound sits above our certified minimum (beyond 1e-9 of the scale); hexsos' undecided cells;
 * soundness on a subset: det J sampled with VTK's Lagrange cells (``InterpolateDerivs``; pyramids, which VTK 9.7
   lacks, with Gmsh's ``getJacobians`` below the apex) never below our lower bound.
+
+``--types``: only these cell types (comma-separated names, run whatever their order) or domains (``tet``,
+``cube``, ``prism``, ``pyramid``: their types of the size's orders).
 
 Gmsh 4.15 cannot evaluate prisms of order >= 3 ("FaceClosureFull not implemented for prisms of order 3"): their
 rows have no Gmsh columns.
@@ -88,14 +91,29 @@ def compare(name, X, repeat, sampled, label):
     return out
 
 
-def run_sets(size):
+def selected(size, types=None):
+    """The (name, domain, order) rows of the curved types a run covers: the size's orders, or ``types`` (names,
+    any order; domains, the size's orders), a comma-separated string or a list."""
     from hexsos_plugins.cells.lagrange import TYPES
 
+    orders = SIZES[size]["orders"]
+    want = [w.strip() for w in (types.split(",") if isinstance(types, str) else types or []) if w.strip()]
+    known = {row[0] for row in TYPES} | {row[1] for row in TYPES}
+    unknown = [w for w in want if w not in known]
+    if unknown:
+        raise ValueError(f"types: expected curved cell types or domains ({', '.join(sorted(known))}), found "
+                         f"{', '.join(unknown)}")
+    rows = []
+    for name, dom, p, *_ in TYPES:
+        if (name in want) or (p in orders and (not want or dom in want)):
+            rows.append((name, dom, p))
+    return rows
+
+
+def run_sets(size, types=None):
     cfg = SIZES[size]
     res = []
-    for name, dom, p, *_ in TYPES:
-        if p not in cfg["orders"]:
-            continue
+    for name, dom, p in selected(size, types):
         for label, s in LEVELS:
             C.log(f"{NAME}: {name} ({label})")
             res.append(compare(name, random_cells(name, cfg["cells"], s), cfg["repeat"], cfg["sampled"],
@@ -125,10 +143,10 @@ def tables_md(res):
     ])
 
 
-def run(quick: bool = False, out="comparison-out", jobs: int = 1, *, size: str | None = None):
+def run(quick: bool = False, out="comparison-out", jobs: int = 1, *, size: str | None = None, types=None):
     t0 = time.perf_counter()
     size = C.resolve_size(quick, size)
-    res = run_sets(size)
+    res = run_sets(size, types)
     bounded = [s for s in res if s["sign_disagreements"] is not None and not s["type"].startswith("pyramid")]
     summary = {NAME: {"cells": sum(s["cells"] for s in res),
                       "sign_disagreements_tets_hexes": sum(s["sign_disagreements"] for s in bounded),
@@ -138,7 +156,9 @@ def run(quick: bool = False, out="comparison-out", jobs: int = 1, *, size: str |
 
 
 def main(argv=None):
-    return C.standalone(run, __doc__, argv)
+    return C.standalone(run, __doc__, argv, extra=lambda ap: ap.add_argument(
+        "--types", default=None, help="only these curved cell types or domains, comma-separated (tet, cube, prism, "
+        "pyramid; a named type runs whatever its order)"))
 
 
 if __name__ == "__main__":

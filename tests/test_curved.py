@@ -19,7 +19,7 @@ import exact_reference as ref
 from hexsos_plugins import check, kernel
 from hexsos_plugins.cells import lagrange
 from hexsos_plugins.cells.elements import ELEMENTS
-from hexsos_plugins.cells.jacobian import factor_tables
+from hexsos_plugins.cells.jacobian import TET_EDGES, bisect_exact, edge_lines, factor_indices, factor_tables
 from hexsos_plugins.io.mesh import MIRROR
 
 gmsh = pytest.importorskip("gmsh")
@@ -245,6 +245,146 @@ def test_exact_decisions_agree_with_the_kernel(name):
             assert float(lower) <= ELEMENTS[name].det(X, LO.domain_points(name, 200, seed=2))[0].min()
         else:
             assert value <= 0 and ELEMENTS[name].det(X, np.asarray(witness, float)[None])[0, 0] <= 1e-12
+
+
+# --- the tetrahedra's bisection ----------------------------------------------------------------------------------
+def _tet_value(c, p, lam):
+    """A tet factor's Bernstein polynomial (coefficients c in factor_indices' order) at barycentric lam, exactly."""
+    from math import factorial, prod
+
+    s = Fraction(0)
+    for cj, a in zip(c, factor_indices("tet", p)):
+        full = (p - sum(a),) + tuple(a)
+        s += Fraction(factorial(p), prod(factorial(v) for v in full)) * prod(l ** v for l, v in zip(lam, full)) * cj
+    return s
+
+
+def _is_child(parent, child, p, edge, keep_first):
+    """Whether ``child`` holds the coefficients of ``parent``'s polynomial on the child of the bisection of edge
+    ``edge`` keeping its first vertex (else its second): equal values at the child's lattice alpha / p, which is
+    unisolvent for degree p (so equal there means equal polynomials)."""
+    i, j = TET_EDGES[edge]
+    for a in factor_indices("tet", p):
+        nu = [Fraction(v, p) for v in (p - sum(a),) + tuple(a)]
+        lam = list(nu)
+        if keep_first:  # the midpoint in slot j: lambda_i = nu_i + nu_j / 2, lambda_j = nu_j / 2
+            lam[i], lam[j] = nu[i] + nu[j] / 2, nu[j] / 2
+        else:
+            lam[j], lam[i] = nu[j] + nu[i] / 2, nu[i] / 2
+        if _tet_value(child, p, nu) != _tet_value(parent, p, lam):
+            return False
+    return True
+
+
+@pytest.mark.parametrize("p", [3, 6])
+def test_tetrahedron_bisection_is_the_exact_subdivision(p):
+    """The kernel's bisection (de Casteljau along the lines of an edge, cells.jacobian.bisect_exact in exact
+    arithmetic) gives both children's Bernstein coefficients exactly, for every edge, on coefficients of wildly
+    different magnitudes and signs; swapped children, a line read in the wrong direction or another edge's
+    lines are not subdivisions (the check would catch such a bisection)."""
+    rng = np.random.default_rng(7 + p)
+    n = len(factor_indices("tet", p))
+    c = [Fraction(int(rng.integers(-10**6, 10**6)), 3 ** int(rng.integers(0, 4))) * Fraction(2) ** int(rng.integers(-80, 80))
+         for _ in range(n)]
+    for e in range(6):
+        lo, hi = bisect_exact(c, p, e)
+        assert _is_child(c, lo, p, e, True) and _is_child(c, hi, p, e, False)
+        assert not _is_child(c, hi, p, e, True) and not _is_child(c, lo, p, e, False)  # swapped
+        ptr, idx, _ = edge_lines(p)
+        bad = list(hi)  # the right halves, each line written in the wrong direction
+        for q in range(ptr.shape[1] - 1):
+            line = idx[e, ptr[e, q]:ptr[e, q + 1]]
+            for s_, k in enumerate(line):
+                bad[k] = hi[line[len(line) - 1 - s_]]
+        assert not _is_child(c, bad, p, e, False)
+        other = bisect_exact(c, p, (e + 1) % 6)[0]  # another edge's lines
+        assert not _is_child(c, other, p, e, True)
+
+
+@pytest.mark.parametrize("name", ["tetra20", "tetra35"])
+def test_compiled_bisection_stays_within_its_rounding_bound(name):
+    """The compiled bisection, 30 levels deep along random edges, against the exact one on the same start: every
+    coefficient within depth times the kernel's per-level bound (consts[2] u scale + consts[3] eta) of the exact
+    subdivision of its input, on coefficients from 1e-18 to 1e18 times the scale, subnormal ones among them; the
+    children's smallest coefficients it returns are theirs."""
+    from hexsos_plugins.kernel import source as src
+
+    t = kernel.tables(name)
+    p = ELEMENTS[name].order * 3 - 3
+    rng = np.random.default_rng(11)
+    for trial in range(2):
+        c0 = rng.standard_normal(t.nb) * np.ldexp(1.0, rng.integers(-60, 1, t.nb))
+        c0[rng.integers(0, t.nb, 5)] = rng.standard_normal(5) * 1e-310  # subnormal
+        scale = float(np.abs(c0).max())
+        level = Fraction(float(t.consts[2] * kernel.U * scale + t.consts[3] * kernel.ETA))
+        ex, fl = [Fraction(float(v)) for v in c0], c0.copy()
+        worst = Fraction(0)
+        for d in range(1, 31):
+            e = int(rng.integers(6))
+            lo, hi, tri = np.empty(t.nb), np.empty(t.nb), np.empty(t.nb)
+            mlo, mhi = src.bisect_tet(fl, lo, hi, e, t.bptr, t.bidx, tri)
+            assert mlo == lo.min() and mhi == hi.min()
+            elo, ehi = bisect_exact(ex, p, e)
+            fl, ex = (lo, elo) if rng.integers(2) else (hi, ehi)
+            worst = max(abs(Fraction(float(v)) - x) for v, x in zip(fl, ex))
+            assert worst <= d * level, (name, d, float(worst), float(level))
+        assert worst > 0  # (the roundings happened: the bound was put to the test)
+
+
+def _adversarial_tets(name, seed):
+    """Perturbed and extreme cells: folded inside, valid at every node but invalid inside, tiny, huge, far from
+    the origin, nearly flat, corner 1 given corner 0's z and moved one ulp either way."""
+    X0 = LO.reference_cell(name)
+    el = ELEMENTS[name]
+    out = list(_perturbed(name, 3, seed, sigma=0.35 / el.order ** 2))
+    bad = _valid_at_nodes_invalid_inside(name)
+    out.append(bad)
+    base = _perturbed(name, 1, seed + 1)[0]
+    out += [base * 1e-150, base * 1e100, base * 1e150, base + 1e6]
+    Q, _ = np.linalg.qr(np.random.default_rng(seed).standard_normal((3, 3)))
+    out.append((base * [1, 1, 1e-9]) @ Q.T)
+    W = base.copy()
+    W[1, 2] = W[0, 2]
+    for step in (-1, 1):
+        V = W.copy()
+        V[1, 2] = np.nextafter(V[1, 2], step * np.inf)
+        out.append(V)
+    return out
+
+
+def test_tetrahedra_verdicts_are_proofs_on_adversarial_cells():
+    """Order-3 tetrahedra, refined by bisection: the lower bound is <= exact det J at the corners, the argmin and
+    random points; valid cells are positive there, invalid ones have det J <= 0 exactly at the argmin; min_det is
+    det J at the argmin and the lower bound within the bracket's width below it (a loose bound fails here)."""
+    name = "tetra20"
+    rng = np.random.default_rng(13)
+    el = ELEMENTS[name]
+    decided = tight = representable = 0
+    cells = _adversarial_tets(name, 3)
+    for X in cells:
+        r = _run(name, X)
+        assert np.isfinite(r.min_det).all() and np.isfinite(r.lower_bound).all()
+        pts = [tuple(x) for x in el.nodes[: el.corners]] + [tuple(Fraction(float(v)) for v in r.argmin[0])]
+        for _ in range(6):
+            x = rng.random(3)
+            x = x / max(1.0, x.sum())
+            pts.append(tuple(Fraction(float(v)).limit_denominator(2**20) for v in x))
+        vals = [ref.exact_det(X, name, q) for q in pts]
+        low = Fraction(float(r.lower_bound[0]))
+        assert all(low <= v for v in vals), X.tolist()
+        at = vals[el.corners]
+        width = Fraction(1, 10**9) * Fraction(float(r.scale[0])) + Fraction(float(r.gap[0])) + Fraction(2) ** -1000
+        if r.status[0] == 1:
+            assert all(v > 0 for v in vals)
+        elif r.status[0] == 0:
+            assert at <= 0
+        decided += r.status[0] != -1
+        if r.status[0] != -1 and not r.unrepresentable[0]:  # (det J of the 1e+-150 cells leaves float64)
+            representable += 1
+            assert abs(Fraction(float(r.min_det[0])) - at) <= width
+            tight += at - low <= Fraction(2, 10**9) * Fraction(float(r.scale[0]))  # closed around the exact value
+    assert decided >= len(cells) - 1  # (the nearly flat cell may stay undecided)
+    assert tight >= representable - 1 >= len(cells) - 4  # (the nearly flat cell: its rounding bound is wider)
 
 
 # --- files and doors ----------------------------------------------------------------------------------------------

@@ -420,7 +420,7 @@ def test_compiled_extension_is_built_from_this_source_and_matches_the_jit():
     assert kernel.implementation() == "aot", "the compiled kernel extension was not built (pip install -e .)"
     from hexsos_plugins.kernel import aot as _kernel_aot
 
-    for name in ("hexahedron", "wedge15", "pyramid", "pyramid13"):
+    for name in ("hexahedron", "wedge15", "pyramid", "pyramid13", "tetra10"):  # (tetra10: the bisection)
         X = _perturbed(name, 40, 0.3, 51)
         P = X.reshape(-1, 3)
         conn = np.arange(P.shape[0]).reshape(X.shape[0], -1)

@@ -28,7 +28,8 @@ closed formulas, :func:`factor_tables`, not by inverting a Vandermonde matrix.)
 the triangle and constant in t.) Every value on the element is a convex combination of the coefficients, so
 their minimum bounds det J from below, and the coefficients at the element's vertices are values;
 subdividing (de Casteljau: lines in halves, triangles and tetrahedra into 4 and 8 by their edge midpoints)
-gives the children's coefficients by fixed matrices with non-negative dyadic entries whose rows sum to 1.
+gives the children's coefficients by fixed matrices with non-negative dyadic entries whose rows sum to 1 (the
+compiled kernel bisects tetrahedra instead, along the lines of :func:`edge_lines`: the same kind of averages).
 
 How the coefficients are computed (:func:`formulation`): the geometry is a Bernstein map too (its control
 points are fixed dyadic combinations of the nodes; serendipity cells' maps lie in the complete space), so each
@@ -58,7 +59,7 @@ from .elements import ELEMENTS
 from .lagrange import TYPES as LAGRANGE_TYPES
 
 __all__ = ["JacobianSpace", "space", "formulation", "factor_indices", "factor_tables", "product_table", "FACTOR_KINDS",
-           "DIRECT_ABOVE"]
+           "DIRECT_ABOVE", "TET_EDGES", "edge_lines", "bisect_exact"]
 
 _F = Fraction
 FACTOR_KINDS = ("line", "tri", "tet")
@@ -118,6 +119,70 @@ def factor_indices(kind, p):
     """Multi-indices of the factor's Bernstein basis (exponents of the barycentric coordinates 1..dim)."""
     d = _DIM[kind]
     return [a for a in product(range(p + 1), repeat=d) if sum(a) <= p] if kind != "line" else [(i,) for i in range(p + 1)]
+
+
+#: The tetrahedron's edges as pairs of its vertices (barycentric slots: 0 the origin, k the unit point e_k).
+TET_EDGES = ((0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3))
+
+
+def edge_lines(p):
+    """A tet factor of degree p seen along each edge (i, j) of :data:`TET_EDGES`: the coefficients whose other two
+    barycentric exponents are fixed form a line, Bernstein coefficients of degree r = alpha_i + alpha_j in the
+    pair (lambda_i, lambda_j). Returns (ptr (6, L + 1), idx (6, n), vert (4,)): line q of edge e is
+    idx[e, ptr[e, q]:ptr[e, q + 1]], ordered by alpha_j = 0..r (the indices of :func:`factor_indices`); vert[k]
+    the coefficient at vertex k (alpha = p e_k).
+
+    Bisecting the edge at its midpoint m halves every line by de Casteljau at 1/2 (:func:`bisect_exact`):
+    the child keeping vertex i (m in slot j) takes the left halves, the child keeping vertex j (m in slot i)
+    the right halves; the other factors of the multinomial are the same for both."""
+    idx = factor_indices("tet", p)
+    where = {(p - sum(a),) + tuple(a): i for i, a in enumerate(idx)}
+    ptr, order = [], []
+    for i, j in TET_EDGES:
+        k, l = (v for v in range(4) if v not in (i, j))
+        row, prow = [], [0]
+        for ak in range(p + 1):
+            for al in range(p + 1 - ak):
+                r = p - ak - al
+                for aj in range(r + 1):
+                    full = [0] * 4
+                    full[i], full[j], full[k], full[l] = r - aj, aj, ak, al
+                    row.append(where[tuple(full)])
+                prow.append(len(row))
+        ptr.append(prow)
+        order.append(row)
+    vert = [where[tuple(p * int(v == k) for v in range(4))] for k in range(4)]
+    return (np.array(ptr, dtype=np.int64), np.array(order, dtype=np.int64), np.array(vert, dtype=np.int64))
+
+
+def bisect_exact(c, p, edge):
+    """The two children's coefficients of a tet factor of degree p (coefficients c, any numbers: Fractions give
+    the exact ones) bisected at the midpoint of edge ``edge`` (an index into :data:`TET_EDGES`): (lo, hi), lo
+    the child keeping vertex i, hi the one keeping vertex j (see :func:`edge_lines`).
+
+    >>> from fractions import Fraction
+    >>> _, _, vert = edge_lines(1)  # degree 1: the coefficients are the values at the vertices
+    >>> c = [Fraction(0)] * 4
+    >>> for k, v in enumerate((0, 3, 5, 7)):
+    ...     c[vert[k]] = Fraction(v)
+    >>> lo, hi = bisect_exact(c, 1, TET_EDGES.index((0, 1)))  # the midpoint of edge 0-1 takes the value 3/2
+    >>> [str(lo[v]) for v in vert], [str(hi[v]) for v in vert]
+    (['0', '3/2', '5', '7'], ['3/2', '3', '5', '7'])
+    """
+    ptr, idx, _ = edge_lines(p)
+    lo, hi = list(c), list(c)
+    for q in range(ptr.shape[1] - 1):
+        line = [c[i] for i in idx[edge, ptr[edge, q]:ptr[edge, q + 1]]]
+        r = len(line) - 1
+        left, right = [line[0]], [line[r]]
+        for level in range(1, r + 1):
+            line = [(line[s] + line[s + 1]) / 2 for s in range(r - level + 1)]
+            left.append(line[0])
+            right.append(line[-1])
+        for s in range(r + 1):
+            lo[idx[edge, ptr[edge, q] + s]] = left[s]
+            hi[idx[edge, ptr[edge, q] + s]] = right[r - s]
+    return lo, hi
 
 
 def _bary(kind, x):

@@ -668,7 +668,9 @@ def check(points, cells=None, *, method: str = "auto", relaxation: str = "quad2"
         A cell whose det J is nowhere larger than ``flat_rtol`` times the size of its terms is flat:
         undecided at once. Default 1e-12.
     max_depth, max_boxes : int, keyword-only
-        Limits of the branch-and-bound per cell (subdivision depth, boxes split). Defaults 30 and 2000.
+        Limits of the branch-and-bound per cell (subdivision depth, boxes split). Defaults 30 and 2000. (Curved
+        tetrahedra are bisected, not split in 8: there a bisection counts a third of a level and a quarter of
+        a split.)
     sos_tol, sos_max_iter : keyword-only
         Clarabel's tolerances (default 1e-8) and iteration cap (default 100). Only the status ``Solved`` is used.
     exact_boxes : int, keyword-only

@@ -15,8 +15,9 @@ One compiled path for every cell type, driven by the tables of :mod:`hexsos_plug
    whose control points are their nodes, the columns) run as straight-line code generated from the tables
    (:mod:`.generated`, written by :func:`hexsos_plugins.generate.codegen.write_generated`: the same operations in the same order, so the same results
    bit for bit; used only while its recorded fingerprint matches the tables');
-2. **bracket**: best-first branch-and-bound over boxes (lines halved, triangles and tetrahedra cut into 4
-   and 8 by their edge midpoints: fixed matrices with dyadic entries), pruning boxes whose smallest
+2. **bracket**: best-first branch-and-bound over boxes (lines halved, triangles cut into 4 by their edge
+   midpoints: fixed matrices with dyadic entries; a tetrahedron, when det J is one tet factor, bisected at the
+   midpoint of its longest edge: de Casteljau along the lines of that edge), pruning boxes whose smallest
    coefficient minus its error bound is above the best value found minus the tolerance; the smallest bound
    of all boxes is a proven lower bound, the vertex coefficients are values (the upper bound);
 3. **polish**: projected Newton from the best vertex (monomial form; the reference element's faces as

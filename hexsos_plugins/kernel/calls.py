@@ -33,8 +33,8 @@ def run_args(points, conn, ids, t, out, start, stop, rtol=1e-9, flat_rtol=1e-12,
               polish_iter=30, cap=256):
     """The arguments of the entry point run_chunk, in its order (also used to derive its compiled signature)."""
     return ((points, conn, ids, int(start), int(stop)) + t.formulation_args +
-            (t.sizes, t.S, t.Snz, t.nchildren, t.cmaps, t.ctrl, t.vidx, t.cidx, t.Mptr, t.Midx, t.Mval, t.exps, t.G,
-             t.h, t.fdim, t.fslot, t.fexp, t.fcoef, t.nctrl, t.nx, float(rtol), float(flat_rtol), int(max_depth),
+            (t.sizes, t.S, t.Snz, t.nchildren, t.cmaps, t.bptr, t.bidx, t.bvert, t.ctrl, t.vidx, t.cidx, t.Mptr,
+             t.Midx, t.Mval, t.exps, t.G, t.h, t.fdim, t.fslot, t.fexp, t.fcoef, t.nctrl, t.nx, float(rtol), float(flat_rtol), int(max_depth),
              int(max_iter), int(polish_iter), int(cap), out["lower"], out["value"], out["argmin"], out["err"],
              out["scale"], out["corner"], out["depth"], out["closed"], out["flat"], out["k"], out["boxes"],
              out["lowroot"], out["size"]))

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..cells.jacobian import factor_indices, formulation, space
+from ..cells.jacobian import edge_lines, factor_indices, formulation, space
 
 __all__ = ["Tables", "tables", "write_tables", "tables_fingerprint", "saved_tables", "sj_tables", "generated_id",
            "sj_id", "code_fingerprint", "sj_fingerprint", "nodes_only", "generated_fingerprints", "GENERATED",
@@ -109,6 +109,12 @@ class Tables:
         self.Snz = _nonzero_columns(self.S)
         self.nchildren = sp.nchildren.astype(np.int64)
         self.cmaps = np.ascontiguousarray(_composed_child_maps(sp))
+        # one tet factor (the tetrahedra): its lines along each edge, for the kernel's bisection (empty otherwise)
+        if len(sp.factors) == 1 and sp.factors[0][0] == "tet" and sp.factors[0][1] > 0:
+            self.bptr, self.bidx, self.bvert = edge_lines(sp.factors[0][1])
+        else:
+            self.bptr, self.bidx, self.bvert = (np.zeros((6, 1), dtype=np.int64), np.zeros((6, 0), dtype=np.int64),
+                                                np.zeros(4, dtype=np.int64))
         self.ctrl = np.ascontiguousarray(sp.ctrl)
         self.vidx = sp.vertex_idx.astype(np.int64)
         self.cidx = sp.corner_idx.astype(np.int64)
@@ -232,8 +238,8 @@ def _composed_child_maps(sp) -> np.ndarray:
 _TABLES = {}
 TABLE_FILE = _HERE / "tables.npz"
 TABLE_FIELDS = ("cptr", "cidx_", "cval", "col_a", "col_b", "col_w", "col_off", "xp", "xi", "xj", "xw", "dp", "di",
-                 "dj", "dw", "consts", "sizes", "S", "Snz", "nchildren", "cmaps", "ctrl", "vidx", "cidx", "M", "Mptr",
-                 "Midx", "Mval", "exps", "G", "h", "fdim", "fslot", "fexp", "fcoef")
+                "dj", "dw", "consts", "sizes", "S", "Snz", "nchildren", "cmaps", "bptr", "bidx", "bvert", "ctrl", "vidx",
+                "cidx", "M", "Mptr", "Midx", "Mval", "exps", "G", "h", "fdim", "fslot", "fexp", "fcoef")
 TABLE_SCALARS = ("nb", "n_nodes", "nctrl", "nx")
 
 

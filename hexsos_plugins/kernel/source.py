@@ -24,6 +24,7 @@ from .generated import scaled_jacobian_loop as _generated_sj
 U = 2.0**-53  # unit roundoff
 ETA = 2.0**-1074  # smallest subnormal: bounds the error of any rounding in the subnormal range
 _NO_EXTENT = -100000  # scaling exponent of a cell whose nodes all coincide
+SIMPLEX_ITER = 4  # a tetrahedron's bisections per split of the budget max_iter (an 8-way split is 7 bisections)
 
 # --- coefficients ----------------------------------------------------------------------------------------------
 
@@ -791,6 +792,215 @@ def _refine(b, err, level_err, tol, upper, argmin, max_depth, max_iter, S, Snz, 
     return lower, upper, maxd, upper - lower <= tol, boxes
 
 
+@njit(cache=True, nogil=True, inline="always")
+def bisect_tet(coef, lo, hi, e, bptr, bidx, tri):
+    """The two children of a tetrahedral box (one tet factor) bisected at the midpoint of its edge e: every line
+    of coefficients along the edge (bidx[e, bptr[e, q]:bptr[e, q + 1]], ordered by the exponent of the edge's
+    second vertex) halved by de Casteljau at 1/2 (each step averages two numbers: r roundings for a line of
+    degree r, no growth), the left halves into lo (the child keeping the edge's first vertex), the right halves
+    into hi; returns the smallest coefficient of each child. O(n p) operations for n coefficients of degree p,
+    against O(n^2) for a dense child matrix; lines of degree <= 2 (most of them) written out, the same steps."""
+    ix = bidx[e]
+    pt = bptr[e]
+    mlo = np.inf
+    mhi = np.inf
+    for q in range(pt.shape[0] - 1):
+        p0 = pt[q]
+        r = pt[q + 1] - p0 - 1
+        if r == 0:
+            i0 = ix[p0]
+            a = coef[i0]
+            lo[i0] = a
+            hi[i0] = a
+            if a < mlo:
+                mlo = a
+            if a < mhi:
+                mhi = a
+        elif r == 1:
+            i0 = ix[p0]
+            i1 = ix[p0 + 1]
+            a = coef[i0]
+            c = coef[i1]
+            m = 0.5 * (a + c)
+            lo[i0] = a
+            lo[i1] = m
+            hi[i0] = m
+            hi[i1] = c
+            if a < mlo:
+                mlo = a
+            if m < mlo:
+                mlo = m
+            if m < mhi:
+                mhi = m
+            if c < mhi:
+                mhi = c
+        elif r == 2:
+            i0 = ix[p0]
+            i1 = ix[p0 + 1]
+            i2 = ix[p0 + 2]
+            a = coef[i0]
+            bb = coef[i1]
+            c = coef[i2]
+            m1 = 0.5 * (a + bb)
+            m2 = 0.5 * (bb + c)
+            mm = 0.5 * (m1 + m2)
+            lo[i0] = a
+            lo[i1] = m1
+            lo[i2] = mm
+            hi[i0] = mm
+            hi[i1] = m2
+            hi[i2] = c
+            if a < mlo:
+                mlo = a
+            if m1 < mlo:
+                mlo = m1
+            if mm < mlo:
+                mlo = mm
+            if mm < mhi:
+                mhi = mm
+            if m2 < mhi:
+                mhi = m2
+            if c < mhi:
+                mhi = c
+        else:
+            for s in range(r + 1):
+                tri[s] = coef[ix[p0 + s]]
+            v = tri[0]
+            lo[ix[p0]] = v
+            if v < mlo:
+                mlo = v
+            v = tri[r]
+            hi[ix[p0 + r]] = v
+            if v < mhi:
+                mhi = v
+            for level in range(1, r + 1):
+                for s in range(r - level + 1):
+                    tri[s] = 0.5 * (tri[s] + tri[s + 1])
+                v = tri[0]
+                lo[ix[p0 + level]] = v
+                if v < mlo:
+                    mlo = v
+                v = tri[r - level]
+                hi[ix[p0 + r - level]] = v
+                if v < mhi:
+                    mhi = v
+    return mlo, mhi
+
+
+@njit(cache=True, nogil=True)
+def _refine_simplex(b, err, level_err, tol, upper, argmin, max_depth, max_iter, bptr, bidx, bvert, bc, bv, blow,
+                    bdepth, kids, pv, tri):
+    """Best-first branch-and-bound of a cell whose det J is one tet factor (the tetrahedra), by bisection: the
+    chosen box (smallest bound) is cut in two at the midpoint of its longest edge (in reference coordinates)
+    by :func:`bisect_tet`. The same rules as :func:`_refine` otherwise: a box's bound is its smallest coefficient
+    minus err + depth level_err, the midpoint's coefficient is a value (the vertices of a box are values: its
+    children's other vertices are their parent's); boxes whose bound is at least ``upper - tol`` are pruned.
+    bv (cap, 4, 3) holds each box's vertices (slot k: barycentric vertex k).
+
+    Rounding: a level rounds each coefficient at most p times (degree p), each time by at most U M + eta / 2
+    (M the largest |coefficient| then; averaging does not grow earlier errors), so by p (U M + eta / 2). Every
+    coefficient is within err + depth level_err of a convex combination of the exact root coefficients, so M <=
+    scale + err + depth level_err; and a cell is refined only while err < 2 scale / 3 (else tol >= 4 err closes
+    its root bracket: max b - min b <= 2 scale <= 3 err), so M < 1.7 scale and p (U M + eta / 2) is below
+    level_err = 2 (n + 2) U scale + 16 n eta (n > p coefficients), the 8-way split's bound."""
+    nb = b.shape[0]
+    cap = blow.shape[0]
+    for i in range(nb):
+        bc[0, i] = b[i]
+    for k in range(4):
+        for a in range(3):
+            bv[0, k, a] = 1.0 if a == k - 1 else 0.0
+    lo0 = np.inf
+    for i in range(nb):
+        if b[i] < lo0:
+            lo0 = b[i]
+    blow[0] = lo0 - err
+    bdepth[0] = 0
+    live = 1
+    pruned = np.inf
+    dropped = np.inf
+    maxd = 0
+    boxes = 0
+    it = 0
+    while live > 0:
+        bi = 0
+        for i in range(1, live):
+            if blow[i] < blow[bi]:
+                bi = i
+        if blow[bi] >= upper - tol:
+            break
+        if bdepth[bi] >= max_depth or it >= max_iter:
+            break
+        it += 1
+        d = bdepth[bi] + 1
+        if d > maxd:
+            maxd = d
+        # the longest edge (the first of equals)
+        e = 0
+        best = -1.0
+        for q in range(6):
+            i0 = 0 if q < 3 else (1 if q < 5 else 2)
+            j0 = q + 1 if q < 3 else (q - 1 if q < 5 else 3)
+            ln = 0.0
+            for a in range(3):
+                dl = bv[bi, j0, a] - bv[bi, i0, a]
+                ln += dl * dl
+            if ln > best:
+                best = ln
+                e = q
+        ei = 0 if e < 3 else (1 if e < 5 else 2)
+        ej = e + 1 if e < 3 else (e - 1 if e < 5 else 3)
+        mlo, mhi = bisect_tet(bc[bi], kids[0], kids[1], e, bptr, bidx, tri)
+        for k in range(4):
+            for a in range(3):
+                pv[k, a] = bv[bi, k, a]
+        live -= 1  # the parent's slot gets the last live box
+        if bi != live:
+            for i in range(nb):
+                bc[bi, i] = bc[live, i]
+            for k in range(4):
+                for a in range(3):
+                    bv[bi, k, a] = bv[live, k, a]
+            blow[bi] = blow[live]
+            bdepth[bi] = bdepth[live]
+        # the midpoint: its coefficient (the same number in both children) is a value there
+        vm = kids[0, bvert[ej]]
+        if vm < upper:
+            upper = vm
+            for a in range(3):
+                argmin[a] = 0.5 * (pv[ei, a] + pv[ej, a])
+        e_d = err + d * level_err
+        for c in range(2):
+            boxes += 1
+            cl = (mlo if c == 0 else mhi) - e_d
+            if cl >= upper - tol:
+                if cl < pruned:
+                    pruned = cl
+                continue
+            if live >= cap:
+                if cl < dropped:
+                    dropped = cl
+                continue
+            for i in range(nb):
+                bc[live, i] = kids[c, i]
+            for k in range(4):
+                for a in range(3):
+                    bv[live, k, a] = pv[k, a]
+            moved = ej if c == 0 else ei  # the slot the midpoint takes
+            for a in range(3):
+                bv[live, moved, a] = 0.5 * (pv[ei, a] + pv[ej, a])
+            blow[live] = cl
+            bdepth[live] = d
+            live += 1
+    lower = min(pruned, dropped)
+    for i in range(live):
+        if blow[i] < lower:
+            lower = blow[i]
+    if lower > upper:
+        lower = upper
+    return lower, upper, maxd, upper - lower <= tol, boxes
+
+
 # --- polish ------------------------------------------------------------------------------------------------------
 
 
@@ -1059,7 +1269,8 @@ def _polish(b, x0, Mptr, Midx, Mval, exps, G, h, iterations, out, c, pw, Q, Z, H
 
 @njit(cache=True, nogil=True)
 def run_chunk(points, conn, ids, start, stop, cptr, cidx_, cval, col_a, col_b, col_w, col_off, xp, xi, xj, xw, dp,
-               di, dj, dw, consts, sizes, S, Snz, nchildren, cmaps, ctrl, vidx, cidx, Mptr, Midx, Mval, exps, G, h,
+               di, dj, dw, consts, sizes, S, Snz, nchildren, cmaps, bptr, bidx, bvert, ctrl, vidx, cidx, Mptr, Midx,
+               Mval, exps, G, h,
                fdim, fslot, fexp, fcoef, nctrl, nx, rtol, flat_rtol, max_depth, max_iter, polish_iter, cap,
                o_lower, o_value, o_argmin, o_err, o_scale, o_corner, o_depth, o_closed, o_flat, o_k, o_boxes,
                o_lowroot, o_size):
@@ -1110,6 +1321,10 @@ def run_chunk(points, conn, ids, start, stop, cptr, cidx_, cval, col_a, col_b, c
     TF3 = np.zeros((4, 3))
     TF33 = np.zeros((4, 3, 3))
     TI3 = np.zeros((2, 3), dtype=np.int64)
+    # one tet factor of positive degree (the tetrahedra): bisection (_refine_simplex), its boxes' vertices in bv
+    simplex = nf == 1 and fdim[0] == 3 and nb > 1
+    bv = np.empty((cap if simplex else 1, 4, 3))
+    pv = np.empty((4, 3))
     line_only = True  # the second-order bound is implemented for products of lines (hexahedra, pyramids)
     for k in range(nf):
         if fdim[k] != 1:
@@ -1182,13 +1397,20 @@ def run_chunk(points, conn, ids, start, stop, cptr, cidx_, cval, col_a, col_b, c
             level_err = consts[2] * U * scale + consts[3] * ETA
             for a in range(3):
                 x[a] = argmin[a]
-            lower, upper, depth, closed, boxes = _refine(b, err, level_err, tol, value, x, max_depth, max_iter, S, Snz,
-                                                         nchildren, sizes, fdim, cmaps, ctrl, vidx, bc, bmap, blow,
-                                                         bdepth, kids, work, pmap, cmap, tri, line_only, TW, TWd,
-                                                         tloc, TF3, TF33, TI3)
+            if simplex:  # three bisections per level of the 8-way split: the same depth and budget in volume
+                lower, upper, depth, closed, boxes = _refine_simplex(b, err, level_err, tol, value, x, 3 * max_depth,
+                                                                     SIMPLEX_ITER * max_iter, bptr, bidx, bvert, bc,
+                                                                     bv, blow, bdepth, kids, pv, tri)
+            else:
+                lower, upper, depth, closed, boxes = _refine(b, err, level_err, tol, value, x, max_depth, max_iter, S,
+                                                             Snz, nchildren, sizes, fdim, cmaps, ctrl, vidx, bc, bmap,
+                                                             blow, bdepth, kids, work, pmap, cmap, tri, line_only, TW,
+                                                             TWd, tloc, TF3, TF33, TI3)
             if depth == 0:
                 depth = 1  # the point may have left the root's vertices: evaluated, not a coefficient
-            if upper < value:  # the search found a lower vertex than the polished point: polish from there
+            # the search found a lower vertex than the polished point: polish from there (a box vertex is exact
+            # to 53 bits of depth; beyond, a rounded midpoint might leave the element: then it is not used)
+            if upper < value and _inside(G, h, x):
                 _polish(b, x, Mptr, Midx, Mval, exps, G, h, polish_iter, st3, pc, pw, Q, Z, Hr, Lc, v3, g3, H3, gr, y3,
                         xs, xt)
                 v1 = _eval_bernstein(b, x, fdim, fslot, fexp, fcoef, sizes, W, xs)
