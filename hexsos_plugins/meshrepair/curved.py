@@ -572,6 +572,8 @@ def repair_curved(points, cells, *, boundary: str = "slide", min_sj=None, max_it
     from ..kernel import scaled_jacobian
     from ..cells.quality import summary
     from .blas import single_thread
+    from .skeleton import folded_cells, linear_blocks, place_high_order
+    from .skeleton import untangle as skeleton_untangle
 
     t0 = time.perf_counter()
     P0 = np.array(points, dtype=np.float64, copy=True)
@@ -679,31 +681,57 @@ def repair_curved(points, cells, *, boundary: str = "slide", min_sj=None, max_it
         sel = cells_at(free)  # every cell touching a free node is in the energy
         return free, [np.flatnonzero(s & mv) for s, mv in zip(sel, movable_blocks)]
 
-    def back_to_surface(V, Vprev_ok, idx):
-        """Boundary nodes idx onto the input's curved faces, each halved back while a cell goes non-positive."""
+    def back_to_surface(V, Vprev_ok, idx, rfun=None, of=None):
+        """Boundary nodes idx onto the input's curved faces, each halved back while a cell (of the blocks ``of``,
+        positivity by ``rfun``) goes non-positive."""
+        rfun = rvals if rfun is None else rfun
+        of = blocks if of is None else of
         if bnd is None or idx.size == 0:
             return V
         W = bnd.project(V, idx)
         moved = idx[np.any(W[idx] != V[idx], axis=1)]
         if moved.size == 0:
             return V
+        ok0 = [rr > 0 for rr in rfun(V)]  # cells already non-positive before do not hold a node back
         for _ in range(12):
-            r = rvals(W)
-            badc = [rr <= 0 for rr in r]
-            sel = _nodes_of(badc, blocks, N)
+            r = rfun(W)
+            badc = [(rr <= 0) & o for rr, o in zip(r, ok0)]
+            sel = _nodes_of(badc, of, N)
             culprits = moved[sel[moved]]
             if culprits.size == 0:
                 break
             W[culprits] = 0.5 * (W[culprits] + V[culprits])
         else:
-            r = rvals(W)
-            sel = _nodes_of([rr <= 0 for rr in r], blocks, N)
+            r = rfun(W)
+            sel = _nodes_of([(rr <= 0) & o for rr, o in zip(r, ok0)], of, N)
             W[moved[sel[moved]]] = V[moved[sel[moved]]]
         its["projection"] += 1
         return W
 
     try:
         with single_thread():
+            # stage 0: cells whose corners are folded (the straight-sided cell is inverted): untangle the linear
+            # mesh of the corners, then the high-order nodes of the cells with moved corners back on the new
+            # corners with the input's curving (:mod:`.skeleton`)
+            ts = time.perf_counter()
+            lin = linear_blocks(blocks)
+            lscale = cell_scales(P0, lin)
+            fold = folded_cells(V, lin, lscale)
+            if any(f.any() for f in fold):
+                Vs = skeleton_untangle(V, lin, lscale, fold, pin, bnd if slide else None, rings=1,
+                                       deadline=None if deadline is None else ts + 0.5 * (deadline - ts),
+                                       debug=_debug)
+                moved = np.any(Vs != V, axis=1)
+                if slide:
+                    def lvals(W):
+                        return [(kernel_coefficients(W, nm, cn).min(axis=1) / s_ if cn.shape[0] else np.zeros(0))
+                                for (nm, cn), s_ in zip(lin, lscale)]
+                    Vs = back_to_surface(Vs, V, np.flatnonzero(moved & (bnd.kind >= 0) & (bnd.kind < 2)), lvals, lin)
+                V = place_high_order(Vs, P0, blocks, moved, bnd if slide else None)
+                _debug(f"skeleton: {int(sum(f.sum() for f in fold))} folded cells -> "
+                       f"{int(sum(f.sum() for f in folded_cells(V, lin, lscale)))}, {int(moved.sum())} corners moved")
+                entry("skeleton", V, sum(int((rr <= 1e-9).sum()) for rr in rvals(V)), time.perf_counter() - ts)
+            stage_s["skeleton"] = time.perf_counter() - ts
             # stage 1: untangle every cell with a coefficient <= 0 (and those the kernel did not prove valid)
             ts = time.perf_counter()
             r = rvals(V)
