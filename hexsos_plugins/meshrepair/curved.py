@@ -683,8 +683,8 @@ def repair_curved(points, cells, *, boundary: str = "slide", min_sj=None, max_it
 
     def back_to_surface(V, Vprev_ok, idx, rfun=None, of=None):
         """Boundary nodes idx onto the input's curved faces, each halved back while a cell (of the blocks ``of``,
-        positivity by ``rfun``) goes non-positive."""
-        rfun = rvals if rfun is None else rfun
+        positivity by ``rfun``; the cells non-positive before too, or with ``rfun`` given only the others) goes
+        non-positive."""
         of = blocks if of is None else of
         if bnd is None or idx.size == 0:
             return V
@@ -692,7 +692,11 @@ def repair_curved(points, cells, *, boundary: str = "slide", min_sj=None, max_it
         moved = idx[np.any(W[idx] != V[idx], axis=1)]
         if moved.size == 0:
             return V
-        ok0 = [rr > 0 for rr in rfun(V)]  # cells already non-positive before do not hold a node back
+        if rfun is None:
+            rfun = rvals
+            ok0 = [np.ones(c.shape[0], dtype=bool) for _, c in of]
+        else:  # another group's folded cells do not hold a node back
+            ok0 = [rr > 0 for rr in rfun(V)]
         for _ in range(12):
             r = rfun(W)
             badc = [(rr <= 0) & o for rr, o in zip(r, ok0)]

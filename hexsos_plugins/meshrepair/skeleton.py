@@ -96,79 +96,97 @@ def _chi(d, eps):
 
 def untangle(V, lin, scale, core, pin, bnd, *, rings=2, deadline=None, outers=60, iters=100, quality_iters=60,
              eps0=1.0, schedule="aggressive", debug=None):
-    """Untangle the linear cells marked in ``core`` (per block masks) group by group; returns the new points.
+    """Untangle the linear cells marked in ``core`` (per block masks); returns the new points (a region is kept
+    only when fewer of its cells are folded after it, or none).
 
-    Unknowns: the corners of each group's cells and of ``rings`` layers around them, but the ``pin`` nodes;
+    Unknowns: the corners of the marked cells and of ``rings`` layers around them, but the ``pin`` nodes (all
+    marked cells in one problem, then each group still folded alone with a ring more);
     ``bnd`` (a :class:`hexsos_plugins.meshrepair.curved.CurvedBoundary`, or None for free) lets boundary corners
     slide in their tangent planes (projected back onto the input's curved faces by the caller). The energy is
-    over every linear cell touching a free node; eps follows Garanzha et al.'s rule (shrinks with the energy's
-    relative decrease), and once every cell of the energy is positive ``quality_iters`` iterations of the barrier
+    over every linear cell touching a free node; eps starts at ``eps0`` (large: the regularized energy is smooth and
+    lets the fold open in big steps), then follows ``schedule``: "aggressive" (a fifth of the most negative
+    coefficient) or "garanzha" (Garanzha et al.'s rule: shrinks with the energy's relative decrease); once every cell of the energy is positive ``quality_iters`` iterations of the barrier
     give the corners some room before the high-order nodes come back."""
-    from .curved import Problem, _components, _node_cells, _nodes_of, fast_coefficients
+    from .curved import _components, _node_cells
 
     N = V.shape[0]
     cells_at = _node_cells(lin, N)
     V = np.array(V, dtype=np.float64, copy=True)
-    for comp in _components(core, lin, N):
+    # every folded cell at once first, three outer steps (most groups open in two: they share them), then the
+    # groups still folded one by one with a ring more
+    V = _untangle_group(V, lin, scale, core, pin, bnd, cells_at, rings, deadline, min(outers, 3), iters,
+                        quality_iters, eps0, schedule, debug)
+    left = folded_cells(V, lin, scale)
+    for comp in _components([c & l for c, l in zip(core, left)], lin, N):
         if deadline is not None and time.perf_counter() > deadline:
             break
-        masks = [c.copy() for c in comp]
-        for _ in range(rings):
-            masks = cells_at(_nodes_of(masks, lin, N))
-        free = _nodes_of(masks, lin, N) & ~pin
-        if not free.any():
-            continue
-        sel = [np.flatnonzero(s) for s in cells_at(free)]
-        prob = Problem(V, lin, scale, sel, free, bnd)
+        V = _untangle_group(V, lin, scale, comp, pin, bnd, cells_at, rings + 1, deadline, outers, iters,
+                            quality_iters, eps0, schedule, debug)
+    return V
 
-        def rcells(P):
-            return [fast_coefficients(P, name, conn, sl).min(axis=1) / s[sl] if sl.size else np.zeros(0)
-                    for (name, conn), s, sl in zip(lin, scale, sel)]
 
-        # the group's cells and the cells positive now must end positive; another group's folded cells in the
-        # ring are that group's to untangle
-        watch = [c[sl] | (r > 1e-9) for c, sl, r in zip(comp, sel, rcells(V))]
+def _untangle_group(V, lin, scale, comp, pin, bnd, cells_at, rings, deadline, outers, iters, quality_iters, eps0,
+                    schedule, debug):
+    from .curved import Problem, _nodes_of, fast_coefficients
 
-        def rall(P):
-            return min((float(r[w].min()) for r, w in zip(rcells(P), watch) if w.any()), default=np.inf)
+    N = V.shape[0]
+    masks = [c.copy() for c in comp]
+    for _ in range(rings):
+        masks = cells_at(_nodes_of(masks, lin, N))
+    free = _nodes_of(masks, lin, N) & ~pin
+    if not free.any():
+        return V
+    sel = [np.flatnonzero(s) for s in cells_at(free)]
+    prob = Problem(V, lin, scale, sel, free, bnd)
 
-        def nbad(P):
-            return sum(int((r <= 1e-9).sum()) for r in rcells(P))
+    def rcells(P):
+        return [fast_coefficients(P, name, conn, sl).min(axis=1) / s[sl] if sl.size else np.zeros(0)
+                for (name, conn), s, sl in zip(lin, scale, sel)]
 
-        n0 = nbad(prob.V0)
+    # the group's cells and the cells positive now must end positive; another group's folded cells in the
+    # ring are that group's to untangle
+    watch = [c[sl] | (r > 1e-9) for c, sl, r in zip(comp, sel, rcells(V))]
 
-        d = d0 = rall(prob.V0)
-        eps = max(0.2 * abs(min(d, 0.0)), eps0)
-        E_prev = prob.energy(np.zeros(prob.ndof), eps, grad=False)[0]
-        best, since = d, 0
-        for outer in range(outers):
-            Vn, _, nit = prob.minimize(eps, iters, deadline)
-            prob.V0 = Vn
-            d = rall(Vn)
-            if debug is not None:
-                debug(f"skeleton: {int(sum(c.sum() for c in comp))} folded cells, {int(free.sum())} free corners, "
-                      f"outer {outer}: eps {eps:.3g}, min r {d:.4g}, {nit} iterations")
-            if d > 1e-9 or (deadline is not None and time.perf_counter() > deadline):
-                break
-            # no progress in 12 outer steps (the most negative coefficient rose by less than 1% of itself): give up
-            since = 0 if d > best + 0.01 * abs(best) else since + 1
-            best = max(best, d)
-            if since >= 12:
-                break
-            if schedule == "garanzha":
-                E = prob.energy(np.zeros(prob.ndof), eps, grad=False)[0]
-                sigma = max(1.0 - E / E_prev, 0.1)
-                mu = (1.0 - sigma) * _chi(d, eps)
-                eps = 2.0 * np.sqrt(mu * (mu - d)) if d < mu else 1e-9
-                E_prev = prob.energy(np.zeros(prob.ndof), eps, grad=False)[0]
-            else:
-                eps = np.sqrt(1e-12 + 0.04 * min(d, 0.0) ** 2)
-        if d > 1e-9 and quality_iters:
-            Vq, _, _ = prob.minimize(1e-9, quality_iters, deadline)
-            if rall(Vq) > d:
-                prob.V0 = Vq
-        if d > 1e-9 or nbad(prob.V0) < n0:  # never worse: fewer cells of the region folded, or none
-            V = prob.V0
+    def rall(P):
+        return min((float(r[w].min()) for r, w in zip(rcells(P), watch) if w.any()), default=np.inf)
+
+    def nbad(P):
+        return sum(int((r <= 1e-9).sum()) for r in rcells(P))
+
+    n0 = nbad(prob.V0)
+
+    d = rall(prob.V0)
+    eps = max(0.2 * abs(min(d, 0.0)), eps0)
+    E_prev = prob.energy(np.zeros(prob.ndof), eps, grad=False)[0]
+    best, since = d, 0
+    for outer in range(outers):
+        Vn, _, nit = prob.minimize(eps, iters, deadline)
+        prob.V0 = Vn
+        d = rall(Vn)
+        if debug is not None:
+            debug(f"skeleton: {int(sum(c.sum() for c in comp))} folded cells, {int(free.sum())} free corners, "
+                  f"outer {outer}: eps {eps:.3g}, min r {d:.4g}, {nit} iterations")
+        if d > 1e-9 or (deadline is not None and time.perf_counter() > deadline):
+            break
+        # no progress in 6 outer steps (the most negative coefficient rose by less than 1% of itself): give up
+        since = 0 if d > best + 0.01 * abs(best) else since + 1
+        best = max(best, d)
+        if since >= 6 or eps < 1e-5:  # or the barrier is hard and the cell still folded: a structural zero
+            break
+        if schedule == "garanzha":
+            E = prob.energy(np.zeros(prob.ndof), eps, grad=False)[0]
+            sigma = max(1.0 - E / E_prev, 0.1)
+            mu = (1.0 - sigma) * _chi(d, eps)
+            eps = 2.0 * np.sqrt(mu * (mu - d)) if d < mu else 1e-9
+            E_prev = prob.energy(np.zeros(prob.ndof), eps, grad=False)[0]
+        else:
+            eps = np.sqrt(1e-12 + 0.04 * min(d, 0.0) ** 2)
+    if d > 1e-9 and quality_iters:
+        Vq, _, _ = prob.minimize(1e-9, quality_iters, deadline)
+        if rall(Vq) > d:
+            prob.V0 = Vq
+    if d > 1e-9 or nbad(prob.V0) < n0:  # never worse: fewer cells of the region folded, or none
+        V = prob.V0
     return V
 
 
