@@ -731,7 +731,7 @@ def repair_curved(points, cells, *, boundary: str = "slide", min_sj=None, max_it
                         return [(kernel_coefficients(W, nm, cn).min(axis=1) / s_ if cn.shape[0] else np.zeros(0))
                                 for (nm, cn), s_ in zip(lin, lscale)]
                     Vs = back_to_surface(Vs, V, np.flatnonzero(moved & (bnd.kind >= 0) & (bnd.kind < 2)), lvals, lin)
-                V = place_high_order(Vs, P0, blocks, moved, bnd if slide else None)
+                V = place_high_order(Vs, P0, blocks, moved, bnd if slide else None, pin)
                 _debug(f"skeleton: {int(sum(f.sum() for f in fold))} folded cells -> "
                        f"{int(sum(f.sum() for f in folded_cells(V, lin, lscale)))}, {int(moved.sum())} corners moved")
                 entry("skeleton", V, sum(int((rr <= 1e-9).sum()) for rr in rvals(V)), time.perf_counter() - ts)

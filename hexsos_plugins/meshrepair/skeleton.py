@@ -190,10 +190,11 @@ def _untangle_group(V, lin, scale, comp, pin, bnd, cells_at, rings, deadline, ou
     return V
 
 
-def place_high_order(V, P0, blocks, moved, bnd=None) -> np.ndarray:
+def place_high_order(V, P0, blocks, moved, bnd=None, pin=None) -> np.ndarray:
     """V with the high-order nodes of every cell touching a ``moved`` node at their straight-sided positions on
     V's corners plus the curving they had in ``P0`` (``P0`` minus its straight-sided positions); with ``bnd``,
-    boundary nodes (kinds 0 and 1) among them projected onto the input's curved faces / feature curves."""
+    boundary nodes (kinds 0 and 1) among them projected onto the input's curved faces / feature curves. Nodes
+    marked in ``pin`` stay."""
     W = np.array(V, dtype=np.float64, copy=True)
     S1 = straight_points(V, blocks)
     S0 = straight_points(P0, blocks)
@@ -204,6 +205,8 @@ def place_high_order(V, P0, blocks, moved, bnd=None) -> np.ndarray:
             continue
         touch = moved[conn[:, : el.corners]].any(axis=1)
         ho[conn[touch, el.corners:].ravel()] = True
+    if pin is not None:
+        ho &= ~pin
     idx = np.flatnonzero(ho)
     W[idx] = S1[idx] + (P0[idx] - S0[idx])
     if bnd is not None and idx.size:
