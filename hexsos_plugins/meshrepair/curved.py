@@ -46,7 +46,8 @@ from ..errors import DependencyError, InvalidInputError, NoCellsError
 from .result import RepairResult
 
 __all__ = ["repair_curved", "needs_curved", "curved_blocks", "coefficient_tables", "fast_coefficients", "kernel_coefficients", "curved_scaled_jacobian",
-           "CurvedBoundary", "curved_boundary", "Problem", "cell_scales", "MOVABLE_DOMAINS"]
+           "CurvedBoundary", "curved_boundary", "Problem", "cell_scales", "MOVABLE_DOMAINS", "node_cells", "cell_groups",
+           "nodes_of"]
 
 #: The reference elements whose cells the curved repair moves (pyramids keep their nodes).
 MOVABLE_DOMAINS = ("tet", "prism", "cube")
@@ -502,14 +503,14 @@ def cell_scales(P, blocks):
     return out
 
 
-def _node_cells(blocks, N):
+def node_cells(blocks, N):
     """For dilation: per block, the cells touching a node mask."""
     def cells_at(mask):
         return [mask[conn].any(axis=1) if conn.shape[0] else np.zeros(0, bool) for _, conn in blocks]
     return cells_at
 
 
-def _components(masks, blocks, N):
+def cell_groups(masks, blocks, N):
     """The marked cells split into groups that share nodes (per group: per block masks)."""
     import scipy.sparse as sps
     from scipy.sparse.csgraph import connected_components
@@ -539,7 +540,8 @@ def _components(masks, blocks, N):
     return out
 
 
-def _nodes_of(masks, blocks, N):
+def nodes_of(masks, blocks, N):
+    """The nodes (mask (N,)) of the cells marked in ``masks`` (per block)."""
     v = np.zeros(N, dtype=bool)
     for m, (_, conn) in zip(masks, blocks):
         if conn.shape[0]:
@@ -650,7 +652,7 @@ def repair_curved(points, cells, *, boundary: str = "slide", min_sj=None, max_it
                     "min_det": float(np.min(r0.min_det)), "min_sj": float(np.nanmin(sj0)) if sj0.size else np.nan,
                     "moved_vertices": 0, "seconds": t_check0})
     scale = cell_scales(P0, blocks)
-    cells_at = _node_cells(blocks, N)
+    cells_at = node_cells(blocks, N)
     V = P0.copy()
     stage_s = {}
     its = {"untangle": 0, "quality": 0, "rounds": 0, "projection": 0}
@@ -674,8 +676,8 @@ def repair_curved(points, cells, *, boundary: str = "slide", min_sj=None, max_it
     def region(core_masks, r, corners=True):
         masks = [m.copy() for m in core_masks]
         for _ in range(r):
-            masks = cells_at(_nodes_of(masks, blocks, N))
-        free = _nodes_of(masks, blocks, N) & ~pin
+            masks = cells_at(nodes_of(masks, blocks, N))
+        free = nodes_of(masks, blocks, N) & ~pin
         if not corners:
             free &= ~corner
         sel = cells_at(free)  # every cell touching a free node is in the energy
@@ -700,14 +702,14 @@ def repair_curved(points, cells, *, boundary: str = "slide", min_sj=None, max_it
         for _ in range(12):
             r = rfun(W)
             badc = [(rr <= 0) & o for rr, o in zip(r, ok0)]
-            sel = _nodes_of(badc, of, N)
+            sel = nodes_of(badc, of, N)
             culprits = moved[sel[moved]]
             if culprits.size == 0:
                 break
             W[culprits] = 0.5 * (W[culprits] + V[culprits])
         else:
             r = rfun(W)
-            sel = _nodes_of([(rr <= 0) & o for rr, o in zip(r, ok0)], of, N)
+            sel = nodes_of([(rr <= 0) & o for rr, o in zip(r, ok0)], of, N)
             W[moved[sel[moved]]] = V[moved[sel[moved]]]
         its["projection"] += 1
         return W
@@ -755,7 +757,7 @@ def repair_curved(points, cells, *, boundary: str = "slide", min_sj=None, max_it
                 # one problem per group of bad cells sharing nodes: each stops when its own cells are positive; a
                 # group with a cell folded at its corners (straight-sided cell inverted) moves its corners at once
                 sj_now = np.split(scaled_jacobian(V, blocks), np.cumsum([c.shape[0] for _, c in blocks])[:-1])
-                for comp in _components(core, blocks, N):
+                for comp in cell_groups(core, blocks, N):
                     folded = any((x[m] <= 0).any() for x, m in zip(sj_now, comp))
                     free, sel = region(comp, ring, corners=corners_too or folded)
                     if not free.any():

@@ -107,17 +107,17 @@ def untangle(V, lin, scale, core, pin, bnd, *, rings=2, deadline=None, outers=60
     lets the fold open in big steps), then follows ``schedule``: "aggressive" (a fifth of the most negative
     coefficient) or "garanzha" (Garanzha et al.'s rule: shrinks with the energy's relative decrease); once every cell of the energy is positive ``quality_iters`` iterations of the barrier
     give the corners some room before the high-order nodes come back."""
-    from .curved import _components, _node_cells
+    from .curved import cell_groups, node_cells
 
     N = V.shape[0]
-    cells_at = _node_cells(lin, N)
+    cells_at = node_cells(lin, N)
     V = np.array(V, dtype=np.float64, copy=True)
     # every folded cell at once first, three outer steps (most groups open in two: they share them), then the
     # groups still folded one by one with a ring more
     V = _untangle_group(V, lin, scale, core, pin, bnd, cells_at, rings, deadline, min(outers, 3), iters,
                         quality_iters, eps0, schedule, debug)
     left = folded_cells(V, lin, scale)
-    for comp in _components([c & l for c, l in zip(core, left)], lin, N):
+    for comp in cell_groups([c & l for c, l in zip(core, left)], lin, N):
         if deadline is not None and time.perf_counter() > deadline:
             break
         V = _untangle_group(V, lin, scale, comp, pin, bnd, cells_at, rings + 1, deadline, outers, iters,
@@ -127,13 +127,13 @@ def untangle(V, lin, scale, core, pin, bnd, *, rings=2, deadline=None, outers=60
 
 def _untangle_group(V, lin, scale, comp, pin, bnd, cells_at, rings, deadline, outers, iters, quality_iters, eps0,
                     schedule, debug):
-    from .curved import Problem, _nodes_of, fast_coefficients
+    from .curved import Problem, nodes_of, fast_coefficients
 
     N = V.shape[0]
     masks = [c.copy() for c in comp]
     for _ in range(rings):
-        masks = cells_at(_nodes_of(masks, lin, N))
-    free = _nodes_of(masks, lin, N) & ~pin
+        masks = cells_at(nodes_of(masks, lin, N))
+    free = nodes_of(masks, lin, N) & ~pin
     if not free.any():
         return V
     sel = [np.flatnonzero(s) for s in cells_at(free)]
