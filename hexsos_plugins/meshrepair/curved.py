@@ -7,6 +7,9 @@ behind them). Every type of the registry (:data:`hexsos_plugins.cells.elements.E
 is a tetrahedron, prism or cube takes part, at any order the registry holds; pyramids keep their nodes and are
 checked.
 
+* **Skeleton** (:mod:`.skeleton`): where a cell's straight-sided cell (its corners) is folded, the linear mesh of
+  the corners is untangled first and the high-order nodes of the cells with moved corners go back on the new
+  corners with the input's curving (at most half of ``time_limit``).
 * **Unknowns**: per group of cells to repair (cells not proven valid or with a coefficient <= 0, grouped by shared
   nodes), first the high-order nodes (edge, face, interior) of those cells, then of ``rings`` layers around
   them, then the corners too (at once for a group with a cell whose corners are folded); never the pinned nodes
