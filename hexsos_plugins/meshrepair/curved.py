@@ -737,8 +737,10 @@ def repair_curved(points, cells, *, boundary: str = "slide", min_sj=None, max_it
                                 for (nm, cn), s_ in zip(lin, lscale)]
                     Vs = back_to_surface(Vs, V, np.flatnonzero(moved & (bnd.kind >= 0) & (bnd.kind < 2)), lvals, lin)
                 V = place_high_order(Vs, P0, blocks, moved, bnd if slide else None, pin)
-                _debug(f"skeleton: {int(sum(f.sum() for f in fold))} folded cells -> "
-                       f"{int(sum(f.sum() for f in folded_cells(V, lin, lscale)))}, {int(moved.sum())} corners moved")
+                its["skeleton_before"] = int(sum(f.sum() for f in fold))
+                its["skeleton_after"] = int(sum(f.sum() for f in folded_cells(V, lin, lscale)))
+                _debug(f"skeleton: {its['skeleton_before']} folded cells -> {its['skeleton_after']}, "
+                       f"{int(moved.sum())} corners moved")
                 entry("skeleton", V, sum(int((rr <= 1e-9).sum()) for rr in rvals(V)), time.perf_counter() - ts)
             stage_s["skeleton"] = time.perf_counter() - ts
             # stage 1: untangle every cell with a coefficient <= 0 (and those the kernel did not prove valid)
@@ -909,6 +911,7 @@ def repair_curved(points, cells, *, boundary: str = "slide", min_sj=None, max_it
         "min_sj_target": min_sj, "min_sj_target_reached": reached,
         "untangle_iterations": its["untangle"], "quality_iterations": its["quality"],
         "quality_rounds": its["rounds"], "projections": its["projection"],
+        "skeleton_folded_before": its.get("skeleton_before", 0), "skeleton_folded_after": its.get("skeleton_after", 0),
         "max_displacement": float(norm.max()) if N else 0.0,
         "mean_displacement": float(norm[movedv].mean()) if movedv.any() else 0.0,
         "moved_vertices": int(movedv.sum()), "pinned_vertices": int(pin.sum()),

@@ -100,7 +100,8 @@ def untangle(V, lin, scale, core, pin, bnd, *, rings=2, deadline=None, outers=60
     only when fewer of its cells are folded after it, or none).
 
     Unknowns: the corners of the marked cells and of ``rings`` layers around them, but the ``pin`` nodes (all
-    marked cells in one problem, then each group still folded alone with a ring more);
+    marked cells in one problem, then those still folded in one problem with a ring more, then each group still
+    folded alone);
     ``bnd`` (a :class:`hexsos_plugins.meshrepair.curved.CurvedBoundary`, or None for free) lets boundary corners
     slide in their tangent planes (projected back onto the input's curved faces by the caller). The energy is
     over every linear cell touching a free node; eps starts at ``eps0`` (large: the regularized energy is smooth and
@@ -112,11 +113,15 @@ def untangle(V, lin, scale, core, pin, bnd, *, rings=2, deadline=None, outers=60
     N = V.shape[0]
     cells_at = node_cells(lin, N)
     V = np.array(V, dtype=np.float64, copy=True)
-    # every folded cell at once first, three outer steps (most groups open in two: they share them), then the
-    # groups still folded one by one with a ring more
+    # every folded cell at once first, three outer steps (most groups open in two: they share them), the rest at
+    # once with a ring more, then the groups still folded one by one
     V = _untangle_group(V, lin, scale, core, pin, bnd, cells_at, rings, deadline, min(outers, 3), iters,
                         quality_iters, eps0, schedule, debug)
     left = folded_cells(V, lin, scale)
+    if any((c & l).any() for c, l in zip(core, left)):  # the rest at once again, with a ring more
+        V = _untangle_group(V, lin, scale, [c & l for c, l in zip(core, left)], pin, bnd, cells_at, rings + 1,
+                            deadline, min(outers, 3), iters, quality_iters, eps0, schedule, debug)
+        left = folded_cells(V, lin, scale)
     for comp in cell_groups([c & l for c, l in zip(core, left)], lin, N):
         if deadline is not None and time.perf_counter() > deadline:
             break
@@ -137,7 +142,6 @@ def _untangle_group(V, lin, scale, comp, pin, bnd, cells_at, rings, deadline, ou
     if not free.any():
         return V
     sel = [np.flatnonzero(s) for s in cells_at(free)]
-    prob = Problem(V, lin, scale, sel, free, bnd)
 
     def rcells(P):
         return [fast_coefficients(P, name, conn, sl).min(axis=1) / s[sl] if sl.size else np.zeros(0)
@@ -146,6 +150,12 @@ def _untangle_group(V, lin, scale, comp, pin, bnd, cells_at, rings, deadline, ou
     # the group's cells and the cells positive now must end positive; another group's folded cells in the
     # ring are that group's to untangle
     watch = [c[sl] | (r > 1e-9) for c, sl, r in zip(comp, sel, rcells(V))]
+    full = []
+    for c, sl, w in zip(comp, sel, watch):
+        m = np.zeros(c.shape[0], dtype=bool)
+        m[sl[w]] = True
+        full.append(m)
+    prob = Problem(V, lin, scale, sel, free, bnd, core=full)  # an outer step stops once those are positive
 
     def rall(P):
         return min((float(r[w].min()) for r, w in zip(rcells(P), watch) if w.any()), default=np.inf)
@@ -160,7 +170,7 @@ def _untangle_group(V, lin, scale, comp, pin, bnd, cells_at, rings, deadline, ou
     E_prev = prob.energy(np.zeros(prob.ndof), eps, grad=False)[0]
     best, since = d, 0
     for outer in range(outers):
-        Vn, _, nit = prob.minimize(eps, iters, deadline)
+        Vn, _, nit = prob.minimize(eps, iters, deadline, stop_positive=True)
         prob.V0 = Vn
         d = rall(Vn)
         if debug is not None:
