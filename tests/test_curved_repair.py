@@ -209,3 +209,98 @@ def test_the_paraview_filter_repairs_a_curved_tet_and_says_so():
     assert vtk_to_numpy(out.GetCellData().GetArray("hexsos_status")).tolist() == [1]
     # the mid-edge node slid along its (straight) feature edge: it stays on the x axis
     assert np.all(new[4, 1:] == 0.0) and new[4, 0] > 0.1
+
+
+def _cylinder_rim_patch(path):
+    """Issue 24's all-hex cylinder (Gmsh: r 1, h 1, subdivision, size 0.35, order 2), cut down to the hexahedra
+    around one sliver at the rim whose *corners* are folded (its straight-sided hex is inverted, det J's
+    coefficients down to -21 times its largest), with two rings of cells around it. Returns (points, hex27
+    connectivity, nodes on the cut faces, nodes on the exact cylinder)."""
+    gmsh.initialize(["-noenv"], readConfigFiles=False)
+    try:
+        gmsh.option.setNumber("General.Terminal", 0)
+        gmsh.option.setNumber("Mesh.HighOrderOptimize", 0)
+        gmsh.model.occ.addCylinder(0, 0, 0, 0, 0, 1, 1)
+        gmsh.option.setNumber("Mesh.SubdivisionAlgorithm", 2)
+        gmsh.option.setNumber("Mesh.RecombineAll", 1)
+        gmsh.model.occ.synchronize()
+        gmsh.option.setNumber("Mesh.MeshSizeMax", 0.35)
+        gmsh.model.mesh.generate(3)
+        gmsh.model.mesh.setOrder(2)
+        gmsh.write(str(path))
+    finally:
+        gmsh.finalize()
+    m = hs.read(path)
+    (name, C), = m.cells
+    P = m.points
+    H = np.ascontiguousarray(C[:, :8])
+    b = cv.kernel_coefficients(P, "hexahedron", H)
+    rel = b.min(axis=1) / np.abs(b).max(axis=1)
+    worst = int(np.argmin(rel))
+    # the worst folded hex and the folded hexes sharing a node with it (the sliver's subdivision), two rings more
+    core = (rel <= 0) & np.isin(H, H[worst]).any(axis=1)
+    sel = core
+    for _ in range(2):
+        sel = np.isin(C, C[sel]).any(axis=1)
+    sub = C[sel]
+    used = np.unique(sub)
+    remap = np.full(P.shape[0], -1)
+    remap[used] = np.arange(used.size)
+    Q, T = P[used], remap[sub]
+    rho = np.hypot(Q[:, 0], Q[:, 1])
+    on = (np.abs(rho - 1.0) < 1e-9) | (np.abs(Q[:, 2]) < 1e-9) | (np.abs(Q[:, 2] - 1.0) < 1e-9)
+    cut = (cv.curved_boundary(Q, [(name, T)]).kind >= 0) & ~on
+    return Q, T, cut, on, int(core.sum())
+
+
+def test_a_sliver_at_the_rim_with_folded_corners_is_untangled_on_its_straight_sided_skeleton(tmp_path):
+    # Gmsh's subdivision leaves hexahedra whose corners are folded (a face collapsed to a sliver, turned inside
+    # out where the rim's nodes went onto the circle); untangling them on the curved cells' 216 coefficients
+    # stalls (6 of these 364 cells were left after 20 s), the skeleton stage untangles the corners first
+    P, T, cut, on, n_core = _cylinder_rim_patch(tmp_path / "cylinder.msh")
+    assert n_core >= 2
+    from hexsos_plugins.meshrepair import skeleton as sk
+
+    lin = sk.linear_blocks([("hexahedron27", T)])
+    assert sk.folded_cells(P, lin, cv.cell_scales(P, lin))[0].sum() >= n_core  # the straight-sided hexes fold
+    before = hs.check(P, [("hexahedron27", T)])
+    assert (before.status == 0).sum() >= n_core
+    res = hs.repair(P, np.zeros((0, 8), dtype=np.int64), cells=[("hexahedron27", T)], pinned=cut, time_limit=60)
+    assert res.success, res.message
+    assert "skeleton" in res.stats["stage_seconds"]
+    after = hs.check(res.points, [("hexahedron27", T)])  # the kernel again, independently of the result
+    assert (after.status == 1).all()
+    assert np.array_equal(res.points[cut], P[cut])  # the cut faces were pinned
+    # nodes on the exact cylinder stay within 1e-3 of the diagonal of it (they slid within the curved faces)
+    X = res.points[on]
+    rho = np.hypot(X[:, 0], X[:, 1])
+    dist = np.minimum(np.abs(rho - 1.0), np.minimum(np.abs(X[:, 2]), np.abs(X[:, 2] - 1.0)))
+    assert dist.max() <= 1e-3 * np.sqrt(9.0)
+    assert np.abs(res.points - P).max() > 0
+
+
+def test_the_skeleton_puts_high_order_nodes_back_on_moved_corners_with_their_curving():
+    from hexsos_plugins.meshrepair import skeleton as sk
+
+    el = ELEMENTS["hexahedron27"]
+    R = el.reference_nodes
+    P0 = np.concatenate([R, R + [1.0, 0.0, 0.0]])
+    C = np.arange(54).reshape(2, 27)
+    P0[C[0, 8]] += [0.0, -0.05, 0.0]  # curving of one edge node of the first cell
+    V = P0.copy()
+    V[C[1, 1]] += [0.1, 0.2, 0.0]  # a corner of the second cell only
+    moved = np.zeros(54, dtype=bool)
+    moved[C[1, 1]] = True
+    W = sk.place_high_order(V, P0, [("hexahedron27", C)], moved)
+    S = sk.straight_points(V, [("hexahedron27", C)])
+    assert np.allclose(W[C[1, 8:]], S[C[1, 8:]])  # the moved cell: straight-sided on its new corners
+    assert np.array_equal(W[C[0]], P0[C[0]])  # the other cell and its curving untouched
+    assert not np.allclose(W[C[1, 8:]], P0[C[1, 8:]])  # (a node of the moved cell did move)
+    moved0 = np.zeros(54, dtype=bool)
+    moved0[C[0, 0]] = True
+    W0 = sk.place_high_order(V, P0, [("hexahedron27", C)], moved0)
+    assert np.allclose(W0[C[0, 8]], S[C[0, 8]] + [0.0, -0.05, 0.0])  # the curving carried over
+    pin = np.zeros(54, dtype=bool)
+    pin[C[0, 8]] = True
+    Wp = sk.place_high_order(V, P0, [("hexahedron27", C)], moved0, pin=pin)
+    assert np.array_equal(Wp[C[0, 8]], V[C[0, 8]])  # a pinned node stays

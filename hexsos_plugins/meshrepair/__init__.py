@@ -6,7 +6,8 @@ steps (:mod:`.localopt`), the boundary model
 (:mod:`.boundary`: surface, features, sliding), the paper's Algorithms 1 and 2 (:mod:`.paper`), the one result
 type (:mod:`.result`), the options and the one rule for their defaults (:mod:`.options`), the boundary's distance
 to the input (:mod:`.fidelity`), the BLAS thread cap (:mod:`.blas`), and the repair of curved and hex-free
-meshes on det J's Bernstein coefficients (:mod:`.curved`, its compiled loops :mod:`.curvedkernels`).
+meshes on det J's Bernstein coefficients (:mod:`.curved`, its compiled loops :mod:`.curvedkernels`, the
+untangling of their folded straight-sided skeleton first :mod:`.skeleton`).
 
 May import: the certify, kernel and cells wings, :class:`hexsos_plugins.io.mesh` helpers (mesh topology) and
 :mod:`hexsos_plugins.errors`. Never the command line or the doors: they call :func:`repair`.

@@ -7,6 +7,9 @@ behind them). Every type of the registry (:data:`hexsos_plugins.cells.elements.E
 is a tetrahedron, prism or cube takes part, at any order the registry holds; pyramids keep their nodes and are
 checked.
 
+* **Skeleton** (:mod:`.skeleton`): where a cell's straight-sided cell (its corners) is folded, the linear mesh of
+  the corners is untangled first and the high-order nodes of the cells with moved corners go back on the new
+  corners with the input's curving (at most half of ``time_limit``).
 * **Unknowns**: per group of cells to repair (cells not proven valid or with a coefficient <= 0, grouped by shared
   nodes), first the high-order nodes (edge, face, interior) of those cells, then of ``rings`` layers around
   them, then the corners too (at once for a group with a cell whose corners are folded); never the pinned nodes
@@ -46,7 +49,8 @@ from ..errors import DependencyError, InvalidInputError, NoCellsError
 from .result import RepairResult
 
 __all__ = ["repair_curved", "needs_curved", "curved_blocks", "coefficient_tables", "fast_coefficients", "kernel_coefficients", "curved_scaled_jacobian",
-           "CurvedBoundary", "curved_boundary", "Problem", "cell_scales", "MOVABLE_DOMAINS"]
+           "CurvedBoundary", "curved_boundary", "Problem", "cell_scales", "MOVABLE_DOMAINS", "node_cells", "cell_groups",
+           "nodes_of"]
 
 #: The reference elements whose cells the curved repair moves (pyramids keep their nodes).
 MOVABLE_DOMAINS = ("tet", "prism", "cube")
@@ -502,14 +506,14 @@ def cell_scales(P, blocks):
     return out
 
 
-def _node_cells(blocks, N):
+def node_cells(blocks, N):
     """For dilation: per block, the cells touching a node mask."""
     def cells_at(mask):
         return [mask[conn].any(axis=1) if conn.shape[0] else np.zeros(0, bool) for _, conn in blocks]
     return cells_at
 
 
-def _components(masks, blocks, N):
+def cell_groups(masks, blocks, N):
     """The marked cells split into groups that share nodes (per group: per block masks)."""
     import scipy.sparse as sps
     from scipy.sparse.csgraph import connected_components
@@ -539,7 +543,8 @@ def _components(masks, blocks, N):
     return out
 
 
-def _nodes_of(masks, blocks, N):
+def nodes_of(masks, blocks, N):
+    """The nodes (mask (N,)) of the cells marked in ``masks`` (per block)."""
     v = np.zeros(N, dtype=bool)
     for m, (_, conn) in zip(masks, blocks):
         if conn.shape[0]:
@@ -572,6 +577,8 @@ def repair_curved(points, cells, *, boundary: str = "slide", min_sj=None, max_it
     from ..kernel import scaled_jacobian
     from ..cells.quality import summary
     from .blas import single_thread
+    from .skeleton import folded_cells, linear_blocks, place_high_order
+    from .skeleton import untangle as skeleton_untangle
 
     t0 = time.perf_counter()
     P0 = np.array(points, dtype=np.float64, copy=True)
@@ -648,7 +655,7 @@ def repair_curved(points, cells, *, boundary: str = "slide", min_sj=None, max_it
                     "min_det": float(np.min(r0.min_det)), "min_sj": float(np.nanmin(sj0)) if sj0.size else np.nan,
                     "moved_vertices": 0, "seconds": t_check0})
     scale = cell_scales(P0, blocks)
-    cells_at = _node_cells(blocks, N)
+    cells_at = node_cells(blocks, N)
     V = P0.copy()
     stage_s = {}
     its = {"untangle": 0, "quality": 0, "rounds": 0, "projection": 0}
@@ -672,38 +679,70 @@ def repair_curved(points, cells, *, boundary: str = "slide", min_sj=None, max_it
     def region(core_masks, r, corners=True):
         masks = [m.copy() for m in core_masks]
         for _ in range(r):
-            masks = cells_at(_nodes_of(masks, blocks, N))
-        free = _nodes_of(masks, blocks, N) & ~pin
+            masks = cells_at(nodes_of(masks, blocks, N))
+        free = nodes_of(masks, blocks, N) & ~pin
         if not corners:
             free &= ~corner
         sel = cells_at(free)  # every cell touching a free node is in the energy
         return free, [np.flatnonzero(s & mv) for s, mv in zip(sel, movable_blocks)]
 
-    def back_to_surface(V, Vprev_ok, idx):
-        """Boundary nodes idx onto the input's curved faces, each halved back while a cell goes non-positive."""
+    def back_to_surface(V, Vprev_ok, idx, rfun=None, of=None):
+        """Boundary nodes idx onto the input's curved faces, each halved back while a cell (of the blocks ``of``,
+        positivity by ``rfun``; the cells non-positive before too, or with ``rfun`` given only the others) goes
+        non-positive."""
+        of = blocks if of is None else of
         if bnd is None or idx.size == 0:
             return V
         W = bnd.project(V, idx)
         moved = idx[np.any(W[idx] != V[idx], axis=1)]
         if moved.size == 0:
             return V
+        if rfun is None:
+            rfun = rvals
+            ok0 = [np.ones(c.shape[0], dtype=bool) for _, c in of]
+        else:  # another group's folded cells do not hold a node back
+            ok0 = [rr > 0 for rr in rfun(V)]
         for _ in range(12):
-            r = rvals(W)
-            badc = [rr <= 0 for rr in r]
-            sel = _nodes_of(badc, blocks, N)
+            r = rfun(W)
+            badc = [(rr <= 0) & o for rr, o in zip(r, ok0)]
+            sel = nodes_of(badc, of, N)
             culprits = moved[sel[moved]]
             if culprits.size == 0:
                 break
             W[culprits] = 0.5 * (W[culprits] + V[culprits])
         else:
-            r = rvals(W)
-            sel = _nodes_of([rr <= 0 for rr in r], blocks, N)
+            r = rfun(W)
+            sel = nodes_of([(rr <= 0) & o for rr, o in zip(r, ok0)], of, N)
             W[moved[sel[moved]]] = V[moved[sel[moved]]]
         its["projection"] += 1
         return W
 
     try:
         with single_thread():
+            # stage 0: cells whose corners are folded (the straight-sided cell is inverted): untangle the linear
+            # mesh of the corners, then the high-order nodes of the cells with moved corners back on the new
+            # corners with the input's curving (:mod:`.skeleton`)
+            ts = time.perf_counter()
+            lin = linear_blocks(blocks)
+            lscale = cell_scales(P0, lin)
+            fold = folded_cells(V, lin, lscale)
+            if any(f.any() for f in fold):
+                Vs = skeleton_untangle(V, lin, lscale, fold, pin, bnd if slide else None, rings=1,
+                                       deadline=None if deadline is None else ts + 0.5 * (deadline - ts),
+                                       debug=_debug)
+                moved = np.any(Vs != V, axis=1)
+                if slide:
+                    def lvals(W):
+                        return [(kernel_coefficients(W, nm, cn).min(axis=1) / s_ if cn.shape[0] else np.zeros(0))
+                                for (nm, cn), s_ in zip(lin, lscale)]
+                    Vs = back_to_surface(Vs, V, np.flatnonzero(moved & (bnd.kind >= 0) & (bnd.kind < 2)), lvals, lin)
+                V = place_high_order(Vs, P0, blocks, moved, bnd if slide else None, pin)
+                its["skeleton_before"] = int(sum(f.sum() for f in fold))
+                its["skeleton_after"] = int(sum(f.sum() for f in folded_cells(V, lin, lscale)))
+                _debug(f"skeleton: {its['skeleton_before']} folded cells -> {its['skeleton_after']}, "
+                       f"{int(moved.sum())} corners moved")
+                entry("skeleton", V, sum(int((rr <= 1e-9).sum()) for rr in rvals(V)), time.perf_counter() - ts)
+            stage_s["skeleton"] = time.perf_counter() - ts
             # stage 1: untangle every cell with a coefficient <= 0 (and those the kernel did not prove valid)
             ts = time.perf_counter()
             r = rvals(V)
@@ -723,7 +762,7 @@ def repair_curved(points, cells, *, boundary: str = "slide", min_sj=None, max_it
                 # one problem per group of bad cells sharing nodes: each stops when its own cells are positive; a
                 # group with a cell folded at its corners (straight-sided cell inverted) moves its corners at once
                 sj_now = np.split(scaled_jacobian(V, blocks), np.cumsum([c.shape[0] for _, c in blocks])[:-1])
-                for comp in _components(core, blocks, N):
+                for comp in cell_groups(core, blocks, N):
                     folded = any((x[m] <= 0).any() for x, m in zip(sj_now, comp))
                     free, sel = region(comp, ring, corners=corners_too or folded)
                     if not free.any():
@@ -872,6 +911,7 @@ def repair_curved(points, cells, *, boundary: str = "slide", min_sj=None, max_it
         "min_sj_target": min_sj, "min_sj_target_reached": reached,
         "untangle_iterations": its["untangle"], "quality_iterations": its["quality"],
         "quality_rounds": its["rounds"], "projections": its["projection"],
+        "skeleton_folded_before": its.get("skeleton_before", 0), "skeleton_folded_after": its.get("skeleton_after", 0),
         "max_displacement": float(norm.max()) if N else 0.0,
         "mean_displacement": float(norm[movedv].mean()) if movedv.any() else 0.0,
         "moved_vertices": int(movedv.sum()), "pinned_vertices": int(pin.sum()),

@@ -132,7 +132,10 @@ def summary_curved(res):
         f"{s['moved_vertices']} moved nodes" + (f", {s['pinned_vertices']} pinned" if s["pinned_vertices"] else ""),
     ] + ([f"boundary          nodes within {s['boundary_max_distance']:.3g} of the input's curved faces"]
          if "boundary_max_distance" in s else []) + [
-        f"stages            untangle {st.get('untangle', 0):.2f} s ({s['untangle_iterations']} iterations), quality "
+        "stages            "
+        + (f"skeleton {st.get('skeleton', 0):.2f} s ({s.get('skeleton_folded_before', 0)} -> "
+           f"{s.get('skeleton_folded_after', 0)} folded straight-sided cells), " if s.get("skeleton_folded_before") else "")
+        + f"untangle {st.get('untangle', 0):.2f} s ({s['untangle_iterations']} iterations), quality "
         f"{st.get('quality', 0):.2f} s ({s['quality_rounds']} rounds), certify {st.get('certify', 0):.2f} s",
         f"time              {s['seconds']:.3f} s",
         f"result            {'certified: every cell proven valid' if res.success else 'NOT every cell proven valid'}",
