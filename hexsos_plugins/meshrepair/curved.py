@@ -52,6 +52,9 @@ __all__ = ["repair_curved", "needs_curved", "curved_blocks", "coefficient_tables
            "CurvedBoundary", "curved_boundary", "Problem", "cell_scales", "MOVABLE_DOMAINS", "node_cells", "cell_groups",
            "nodes_of"]
 
+#: vertices of each reference element (the first nodes of every cell)
+_VERTICES = {"tet": 4, "cube": 8, "prism": 6, "pyramid": 5}
+
 #: The reference elements whose cells the curved repair moves (pyramids keep their nodes).
 MOVABLE_DOMAINS = ("tet", "prism", "cube")
 
@@ -673,7 +676,8 @@ def repair_curved(points, cells, *, boundary: str = "slide", min_sj=None, max_it
 
     corner = np.zeros(N, dtype=bool)
     for name, conn in blocks:
-        corner[conn[:, :ELEMENTS[name].corners].ravel()] = True
+        # the cell's vertices (``Element.corners`` counts a pyramid's 4 base corners only: the corner check's)
+        corner[conn[:, :_VERTICES[ELEMENTS[name].domain]].ravel()] = True
     high_order = used & ~corner & ~pin
 
     def region(core_masks, r, corners=True):
