@@ -592,3 +592,29 @@ def test_legacy_vtk_lagrange_cells_round_trip_and_vtk_sees_the_same_cells(tmp_pa
         wrong = read_legacy_vtk(raw, legacy)
         wb = next(b.data for b in wrong.cells if b.type == hexname)
         assert not np.allclose(ELEMENTS[hexname].det(wrong.points[wb], pc), ours, rtol=1e-6, atol=1e-6)
+
+
+def test_gmsh_incomplete_elements_above_order_two_are_named_in_the_error(tmp_path):
+    """Gmsh makes incomplete elements at order 3 (Mesh.SecondOrderIncomplete): hexsos has no exact element for them;
+    the error names Gmsh's element type (meshio's said only 'np.int32(20)') and what hexsos reads, on one line."""
+    import subprocess
+    import sys
+
+    path = tmp_path / "incomplete3.msh"
+    gmsh.initialize([], readConfigFiles=False, interruptible=False)
+    try:
+        gmsh.option.setNumber("General.Terminal", 0)
+        gmsh.model.add("inc")
+        gmsh.model.occ.addBox(0, 0, 0, 1, 1, 1)
+        gmsh.model.occ.synchronize()
+        gmsh.option.setNumber("Mesh.MeshSizeMax", 0.6)
+        gmsh.option.setNumber("Mesh.SecondOrderIncomplete", 1)
+        gmsh.model.mesh.generate(3)
+        gmsh.model.mesh.setOrder(3)
+        gmsh.write(str(path))
+    finally:
+        gmsh.finalize()
+    p = subprocess.run([sys.executable, "-m", "hexsos_plugins", "check", str(path)], capture_output=True, text=True,
+                       timeout=120)
+    assert p.returncode == 2 and "Traceback" not in p.stderr and len(p.stderr.strip().splitlines()) == 1
+    assert "Gmsh element type" in p.stderr and "incomplete" in p.stderr and "np.int32" not in p.stderr
