@@ -1,4 +1,4 @@
-"""Benchmark of ``hexsos repair`` on curved meshes (issue 24) beside Gmsh's own high-order optimizers.
+"""Benchmark of ``hexsos repair`` on curved meshes beside Gmsh's own high-order optimizers.
 
     python -m comparison.bench_curved_repair [--kinds shell,cylinder,torus] [--timeout S] [--json OUT.json]
 

@@ -11,7 +11,7 @@ move, moved vertices (and how many by more than 1% of the diagonal), seconds per
 Meshes (generated, seeded; :mod:`comparison.stress`): graded curved Gmsh solids (``graded_solid``) with a few
 interior vertices moved (ordinary) or 50-90% of the interior vertices moved by up to an edge length (stress
 tests); Gmsh ring meshes with 2% of the interior vertices moved by half an edge (the paper's kind of damage);
-a box with one fold inside a corner-valid hex; issue 14's hex + prism block; and the paper's *bunny*
+a box with one fold inside a corner-valid hex; a hex + prism block; and the paper's *bunny*
 (``../shared/data/bunny.vtk``, read in place, skipped when absent).
 
 For each mesh and each repair: hexes, cells not proven valid before / after, the corner scaled Jacobian (min, 1st

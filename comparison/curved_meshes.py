@@ -1,4 +1,4 @@
-"""The curved meshes of issue 24, generated with Gmsh as users get them: ``Mesh.HighOrderOptimize`` 0, then
+"""Curved meshes Gmsh's own curving inverts, generated with Gmsh as users get them: ``Mesh.HighOrderOptimize`` 0, then
 ``setOrder`` (Gmsh moves the high-order nodes of the boundary elements onto the geometry and often inverts the
 cells behind them).
 

@@ -9,7 +9,7 @@ Every mesh here is generated (Gmsh through its Python API, numpy), seeded; none 
   boundary surface kept).
 * :func:`single_fold` -- a Gmsh box mesh in which one boundary hex has its boundary face moved to where the
   hex stays positive at all 8 corners but folds inside, and every other hex stays valid.
-* :func:`hex_prism_block` -- issue 14's mesh: an extruded square split into a quad half (hexahedra) and a
+* :func:`hex_prism_block` -- an extruded square split into a quad half (hexahedra) and a
   triangle half (prisms) sharing nodes, interior nodes near the interface moved by up to ``amp`` (seeded).
 """
 
