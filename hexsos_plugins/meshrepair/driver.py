@@ -313,8 +313,9 @@ def repair(points, hexes, *, cells=None, method: str = "optimize", boundary: str
         ``boundary="slide"``: how far a boundary vertex may end off the input surface (or its feature curve, or
         its feature corner's position), as a fraction of its mean boundary edge length. Default
         SURFACE_TOLERANCE = 0.2: a quad on a curved surface cannot be square, and a fifth of an edge lets the
-        last vertex steps square it (module docstring; the published meshes' boundary stays within 1.2% of the
-        diagonal); 0 keeps every boundary vertex exactly on the surface and feature corners where they are.
+        last vertex steps square it (module docstring; on the published meshes of the README every boundary
+        vertex stays within 1.9% of the diagonal of the input surface); 0 keeps every boundary vertex exactly on
+        the surface and feature corners where they are.
     rings : int, keyword-only
         Layers of cells around the bad ones that move (default 2).
     fallback : bool, keyword-only
@@ -547,7 +548,8 @@ class _Optimize:
     def _local(self, V, movable, bm, others, deadline, seconds=None, band=False):
         """Stage 2b (:func:`hexsos_plugins.meshrepair.localopt.local_sweeps`) on the hexes; vertices of other cells stay.
         Sliding boundary vertices move in their tangent planes, then back onto the input surface as far as every
-        cell stays above the minimum reached."""
+        cell stays above the minimum reached; with ``band`` (the last steps) a second pass lets those of the hexes
+        below ``BAND_BELOW`` move within the band (feature corners too)."""
         from . import optimize as opt
         from .localopt import BAND_BELOW, local_sweeps
 
