@@ -23,7 +23,7 @@ from ..meshio_conventions import LEGACY_VTU_HEX
 from .common import ParseError, make_block
 from .tokens import Cursor, is_number, numbers
 
-__all__ = ["read_legacy_vtk", "recheck_vtk51_tetra", "VTK_CELLS"]
+__all__ = ["read_legacy_vtk", "recheck_vtk51_tetra", "VTK_CELLS", "vtk_blocks", "check_data_lengths"]
 
 
 _VTK_DTYPES = {
@@ -164,12 +164,7 @@ class _VtkReader:
         if len(types) != len(offsets) - 1:
             raise ParseError(f"expected as many CELL_TYPES as CELLS, found {len(types)} types for "
                               f"{len(offsets) - 1} cells")
-        for name, arr in point_data.items():
-            if len(arr) != len(points):
-                raise ParseError(f"point data {name!r} has {len(arr)} values for {len(points)} points")
-        for name, arr in cell_data.items():
-            if len(arr) != len(types):
-                raise ParseError(f"cell data {name!r} has {len(arr)} values for {len(types)} cells")
+        check_data_lengths(point_data, len(points), cell_data, len(types))
         cells, cd = vtk_blocks(conn, offsets, types, cell_data, old_hex_order=version < (5, 1))
         return meshio.Mesh(points, cells, point_data=point_data, cell_data=cd, field_data=field_data)
 
@@ -240,6 +235,16 @@ def _legacy_cells(raw: np.ndarray, n: int, line: int):
     keep = np.ones(len(raw), dtype=bool)
     keep[offsets[:-1] + np.arange(n)] = False
     return raw[keep], offsets
+
+
+def check_data_lengths(point_data, n_points, cell_data, n_cells):
+    """Every point array holds a value per point and every cell array one per cell (``ParseError`` if not)."""
+    for name, arr in point_data.items():
+        if len(arr) != n_points:
+            raise ParseError(f"point data {name!r} has {len(arr)} values for {n_points} points")
+    for name, arr in cell_data.items():
+        if len(arr) != n_cells:
+            raise ParseError(f"cell data {name!r} has {len(arr)} values for {n_cells} cells")
 
 
 def vtk_blocks(conn, offsets, types, cell_data, *, old_hex_order=False):

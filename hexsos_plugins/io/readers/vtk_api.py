@@ -78,7 +78,7 @@ def read_vtk_api(path, *, legacy: bool) -> meshio.Mesh:
     from vtkmodules.util.numpy_support import vtk_to_numpy
     from vtkmodules.vtkCommonCore import vtkOutputWindow, vtkStringOutputWindow
 
-    from .legacy_vtk import vtk_blocks
+    from .legacy_vtk import check_data_lengths, vtk_blocks
 
     if legacy:
         from vtkmodules.vtkIOLegacy import vtkUnstructuredGridReader as Reader
@@ -119,12 +119,7 @@ def read_vtk_api(path, *, legacy: bool) -> meshio.Mesh:
         vtkOutputWindow.SetInstance(previous)
     if len(types) != len(offsets) - 1:
         raise ParseError(f"VTK returned {len(types)} cell types for {len(offsets) - 1} cells")
-    for name, arr in point_data.items():
-        if len(arr) != len(points):
-            raise ParseError(f"point data {name!r} has {len(arr)} values for {len(points)} points")
-    for name, arr in cell_data.items():
-        if len(arr) != len(types):
-            raise ParseError(f"cell data {name!r} has {len(arr)} values for {len(types)} cells")
+    check_data_lengths(point_data, len(points), cell_data, len(types))
     cells, cd = vtk_blocks(conn, offsets, types, cell_data)
     mesh = meshio.Mesh.__new__(meshio.Mesh)
     mesh.points, mesh.cells = points, cells
