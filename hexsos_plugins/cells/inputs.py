@@ -9,8 +9,9 @@ quadrilaterals: a Gmsh mesh's boundary) are left out of a ``CellBlock`` list or 
 Connectivity is taken as given, in VTK node order (meshio's own order for every type but the 18-node wedge; linear
 wedges read by meshio from VTK files come mirrored: :func:`hexsos_plugins.read` reads files in VTK order).
 
-Imports numpy and :mod:`.elements` only: meshio's objects and hexsos's meshes are recognised by what they hold
-(a ``CellBlock`` has ``type`` and ``data``; a mesh ``points`` and ``cells``).
+Imports numpy, :mod:`.elements` and :mod:`hexsos_plugins.errors` only: meshio's objects and hexsos's meshes are
+recognised by what they hold (a ``CellBlock`` has ``type`` and ``data``; a mesh ``points`` and ``cells``).
+:func:`checked_block` checks one (type, connectivity) pair against the registry and the points.
 """
 
 from __future__ import annotations
@@ -19,9 +20,10 @@ from collections import Counter
 
 import numpy as np
 
+from ..errors import InvalidInputError
 from .elements import ELEMENTS
 
-__all__ = ["CHECKABLE", "is_3d", "cell_pairs", "mesh_points_and_cells"]
+__all__ = ["CHECKABLE", "is_3d", "cell_pairs", "mesh_points_and_cells", "checked_block"]
 
 #: meshio cell type names hexsos checks (``voxel`` as a hexahedron)
 CHECKABLE = tuple(ELEMENTS) + ("voxel",)
@@ -73,3 +75,20 @@ def mesh_points_and_cells(points, cells):
     if cells is None and _is_mesh(points):
         return points.points, points
     return points, cells
+
+
+def checked_block(k: int, name, conn, n_points: int) -> np.ndarray:
+    """``conn`` of ``cells[k]`` as int64 (M, n), after checking that ``name`` is a registry type, ``conn`` an integer
+    array with its node count per row and every index a point (``InvalidInputError`` saying which otherwise)."""
+    if name not in ELEMENTS:
+        raise InvalidInputError(f"cells[{k}]: expected a 3-D cell type ({', '.join(ELEMENTS)}), found {name!r}")
+    conn = np.asarray(conn)
+    n = ELEMENTS[name].n_nodes
+    if conn.ndim != 2 or conn.shape[1] != n or (conn.size and conn.dtype.kind not in "iu"):
+        raise InvalidInputError(f"cells[{k}] ({name}): expected an integer array of shape (M, {n}), found shape "
+                                f"{conn.shape} and dtype {conn.dtype}")
+    conn = np.ascontiguousarray(conn, dtype=np.int64)
+    if conn.size and (conn.min() < 0 or conn.max() >= n_points):
+        raise InvalidInputError(f"cells[{k}] ({name}): node index out of range 0..{n_points - 1} (found "
+                                f"{int(conn.min())}..{int(conn.max())})")
+    return conn

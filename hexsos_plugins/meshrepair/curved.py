@@ -44,6 +44,7 @@ from functools import lru_cache
 import numpy as np
 
 from ..cells.elements import ELEMENTS
+from ..cells.inputs import checked_block
 from ..cells.jacobian import factor_indices, space
 from ..errors import DependencyError, InvalidInputError, NoCellsError
 from .result import RepairResult
@@ -590,17 +591,7 @@ def repair_curved(points, cells, *, boundary: str = "slide", min_sj=None, max_it
     N = P0.shape[0]
     blocks = []
     for k, (name, conn) in enumerate(cells):
-        if name not in ELEMENTS:
-            raise InvalidInputError(f"cells[{k}]: expected a 3-D cell type ({', '.join(ELEMENTS)}), found {name!r}")
-        conn = np.asarray(conn)
-        n = ELEMENTS[name].n_nodes
-        if conn.ndim != 2 or conn.shape[1] != n or (conn.size and conn.dtype.kind not in "iu"):
-            raise InvalidInputError(f"cells[{k}] ({name}): expected an integer array of shape (M, {n}), found shape "
-                                    f"{conn.shape} and dtype {conn.dtype}")
-        conn = np.ascontiguousarray(conn, dtype=np.int64)
-        if conn.size and (conn.min() < 0 or conn.max() >= N):
-            raise InvalidInputError(f"cells[{k}] ({name}): node index out of range 0..{N - 1}")
-        blocks.append((name, conn))
+        blocks.append((name, checked_block(k, name, conn, N)))
     if not any(c.shape[0] for _, c in blocks):
         raise NoCellsError("repair: expected 3-D cells, found none")
     if boundary not in ("slide", "fixed", "free"):

@@ -52,6 +52,7 @@ import numpy as np
 
 from ..certify import check, validate_arrays
 from ..cells.elements import ELEMENTS
+from ..cells.inputs import checked_block
 from ..errors import InvalidInputError
 from ..cells.quality import IDEAL, LINEAR_TYPES, SAMPLES, summary
 from .options import BOUNDARY_MODES, DEFAULT_MARGIN, DEFAULT_RHO, METHODS, SURFACE_TOLERANCE, resolve_boundary
@@ -147,18 +148,7 @@ def _validate_cells(cells, n_points):
             raise InvalidInputError(f"cells[{k}]: expected a (cell type, connectivity) pair, found {item!r}") from None
         if name == "hexahedron":
             raise InvalidInputError("cells: trilinear hexahedra go in `hexes`; `cells` holds the other 3-D cells")
-        if name not in ELEMENTS:
-            raise InvalidInputError(f"cells[{k}]: expected a 3-D cell type ({', '.join(ELEMENTS)}), found {name!r}")
-        conn = np.asarray(conn)
-        n = ELEMENTS[name].n_nodes
-        if conn.ndim != 2 or conn.shape[1] != n or (conn.size and conn.dtype.kind not in "iu"):
-            raise InvalidInputError(f"cells[{k}] ({name}): expected an integer array of shape (M, {n}), found shape "
-                                    f"{conn.shape} and dtype {conn.dtype}")
-        conn = conn.astype(np.int64)
-        if conn.size and (conn.min() < 0 or conn.max() >= n_points):
-            raise InvalidInputError(f"cells[{k}] ({name}): node index out of range 0..{n_points - 1} (found "
-                                    f"{int(conn.min())}..{int(conn.max())})")
-        out.append((name, conn))
+        out.append((name, checked_block(k, name, conn, n_points)))
     return out
 
 
