@@ -28,10 +28,12 @@ def _corners(gmsh, etype):
     return int(gmsh.model.mesh.getElementProperties(etype)[5])
 
 
-def build_mixed(gmsh, order, *, size=0.35, curve=0.03, noise=0.0, seed=0):
+def build_mixed(gmsh, order, *, size=0.35, curve=0.03, noise=0.0, seed=0, incomplete=False, bottom=False):
     """The mixed mesh of two extruded layers (hexahedra, prisms) under an unstructured cap (tetrahedra, pyramids),
     at ``order``; the high-order nodes (not the corners) moved by ``curve`` sin(...) (a curved mesh) and by
-    Gaussian ``noise`` (times the mesh size; noise makes some cells invalid)."""
+    Gaussian ``noise`` (times the mesh size; noise makes some cells invalid). ``incomplete``: Gmsh's incomplete
+    elements at order 2 (``Mesh.SecondOrderIncomplete``); ``bottom``: the bottom faces a physical group too (21,
+    "Bottom")."""
     gmsh.model.add(f"mixed{order}")
     g = gmsh.model.geo
     p = [g.addPoint(x, y, 0, size) for x, y in ((0, 0), (1, 0), (1, 1), (0, 1), (2, 0), (2, 1))]
@@ -49,6 +51,9 @@ def build_mixed(gmsh, order, *, size=0.35, curve=0.03, noise=0.0, seed=0):
     vols = [t for _, t in gmsh.model.getEntities(3)]
     gmsh.model.addPhysicalGroup(3, vols[:2], 11, "Layers")
     gmsh.model.addPhysicalGroup(3, vols[2:], 12, "Cap")
+    if bottom:
+        gmsh.model.addPhysicalGroup(2, [s1, s2], 21, "Bottom")
+    gmsh.option.setNumber("Mesh.SecondOrderIncomplete", int(incomplete))
     gmsh.model.mesh.generate(3)
     if order > 1:
         gmsh.model.mesh.setOrder(order)

@@ -22,6 +22,7 @@ from hexsos_plugins.cells.elements import ELEMENTS
 from hexsos_plugins.errors import HexsosError, MeshFormatError
 from hexsos_plugins.io.mesh import MIRROR, Mesh
 from hexsos_plugins.io.readers import readers_for
+from comparison.curved_mixed import build_mixed
 from hexsos_plugins.io.readers.msh_binary import read_msh_binary
 
 gmsh = pytest.importorskip("gmsh")
@@ -38,47 +39,6 @@ KINDS = {
 }
 
 
-def _build(gmsh, order, incomplete, curve=0.0):
-    """Two layers extruded with recombination (hexahedra from quads, prisms from triangles) under an unstructured
-    cap (tetrahedra, and pyramids on the quads they touch)."""
-    gmsh.model.add("mixed")
-    g = gmsh.model.geo
-    p = [g.addPoint(x, y, 0, 0.35) for x, y in ((0, 0), (1, 0), (1, 1), (0, 1), (2, 0), (2, 1))]
-    l = [g.addLine(p[0], p[1]), g.addLine(p[1], p[2]), g.addLine(p[2], p[3]), g.addLine(p[3], p[0]),
-         g.addLine(p[1], p[4]), g.addLine(p[4], p[5]), g.addLine(p[5], p[2])]
-    s1 = g.addPlaneSurface([g.addCurveLoop([l[0], l[1], l[2], l[3]])])
-    s2 = g.addPlaneSurface([g.addCurveLoop([l[4], l[5], l[6], -l[1]])])
-    g.mesh.setTransfiniteSurface(s1)
-    for c in l[:4]:
-        g.mesh.setTransfiniteCurve(c, 4)
-    g.mesh.setRecombine(2, s1)
-    e1 = g.extrude([(2, s1), (2, s2)], 0, 0, 0.6, [2], recombine=True)
-    g.extrude([e1[0], e1[6]], 0, 0, 0.7)
-    g.synchronize()
-    vols = [t for _, t in gmsh.model.getEntities(3)]
-    gmsh.model.addPhysicalGroup(3, vols[:2], 11, "Layers")
-    gmsh.model.addPhysicalGroup(3, vols[2:], 12, "Cap")
-    gmsh.model.addPhysicalGroup(2, [s1, s2], 21, "Bottom")
-    gmsh.option.setNumber("Mesh.SecondOrderIncomplete", int(incomplete))
-    gmsh.model.mesh.generate(3)
-    if order > 1:
-        gmsh.model.mesh.setOrder(order)
-        # move the high-order nodes (not the corners) off their straight positions, so that a wrong node order
-        # changes the geometry: x += c sin(3 y) etc.
-        tags, xyz, _ = gmsh.model.mesh.getNodes()
-        xyz = np.asarray(xyz).reshape(-1, 3)
-        corner_tags = set()
-        for t in gmsh.model.mesh.getElementTypes():
-            k = gmsh.model.mesh.getElementProperties(t)[5]  # number of primary (corner) nodes
-            n = gmsh.model.mesh.getElementProperties(t)[3]
-            nodes = np.asarray(gmsh.model.mesh.getElementsByType(t)[1]).reshape(-1, n)
-            corner_tags.update(nodes[:, :k].ravel().tolist())
-        for tag, x in zip(tags, xyz):
-            if int(tag) not in corner_tags:
-                d = 0.03 * np.array([np.sin(3 * x[1] + x[2]), np.sin(2 * x[2] + x[0]), np.sin(3 * x[0] + x[1])])
-                gmsh.model.mesh.setNode(int(tag), (x + d).tolist(), [])
-
-
 def write_gmsh_meshes(directory, kinds=KINDS):
     """Write each kind as Gmsh writes it: ``{kind}_41.msh`` (MSH 4.1 ASCII), ``{kind}_41b.msh`` (binary),
     ``{kind}_22b.msh`` (MSH 2.2 binary), ``{kind}_22.msh`` (2.2 ASCII), ``{kind}.vtk`` (Gmsh's legacy VTK).
@@ -91,7 +51,9 @@ def write_gmsh_meshes(directory, kinds=KINDS):
         gmsh.option.setNumber("General.Terminal", 0)
         for kind in kinds:
             order, incomplete, _ = KINDS[kind]
-            _build(gmsh, order, incomplete)
+            # the high-order nodes moved off their straight positions, so that a wrong node order changes the
+            # geometry
+            build_mixed(gmsh, order, incomplete=incomplete, bottom=True, curve=0.03)
             paths = {}
             for suffix, version, binary in (("41", 4.1, 0), ("41b", 4.1, 1), ("22b", 2.2, 1), ("22", 2.2, 0)):
                 gmsh.option.setNumber("Mesh.MshFileVersion", version)
