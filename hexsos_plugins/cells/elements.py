@@ -80,7 +80,8 @@ import numpy as np
 from .lagrange import TYPES as _LAGRANGE_TYPES
 from .lagrange import lagrange_shapes, reference_nodes
 
-__all__ = ["Element", "ELEMENTS", "CELL_TYPES", "VOXEL_TO_VTK", "element", "cell_type_code", "world_points", "eval_exact", "HEX_FACES"]
+__all__ = ["Element", "ELEMENTS", "CELL_TYPES", "VOXEL_TO_VTK", "element", "cell_type_code", "world_points", "eval_exact", "HEX_FACES",
+           "exact_inverse"]
 
 #: VTK_VOXEL (cell type 11) orders its nodes with x fastest; ``voxel[:, VOXEL_TO_VTK]`` is a hexahedron.
 VOXEL_TO_VTK = np.array([0, 1, 3, 2, 4, 5, 7, 6])
@@ -147,20 +148,20 @@ def _div_one_minus_t(p):
     return out
 
 
-def _solve_exact(A, B):
-    """Solve A X = B exactly (A n x n, B n x m, lists of Fractions) by Gauss-Jordan elimination."""
-    n = len(A)
-    M = [list(A[i]) + list(B[i]) for i in range(n)]
-    for col in range(n):
-        piv = next(r for r in range(col, n) if M[r][col] != 0)
-        M[col], M[piv] = M[piv], M[col]
-        inv = 1 / M[col][col]
-        M[col] = [v * inv for v in M[col]]
+def exact_inverse(M):
+    """The inverse of a square matrix of Fractions, exact (Gauss-Jordan with row pivoting)."""
+    n = len(M)
+    A = [list(r) + [_F(int(i == j)) for j in range(n)] for i, r in enumerate(M)]
+    for c in range(n):
+        piv = next(r for r in range(c, n) if A[r][c] != 0)
+        A[c], A[piv] = A[piv], A[c]
+        inv = 1 / A[c][c]
+        A[c] = [v * inv for v in A[c]]
         for r in range(n):
-            if r != col and M[r][col] != 0:
-                f = M[r][col]
-                M[r] = [a - f * b for a, b in zip(M[r], M[col])]
-    return [row[n:] for row in M]
+            if r != c and A[r][c] != 0:
+                f = A[r][c]
+                A[r] = [a - f * b for a, b in zip(A[r], A[c])]
+    return [r[n:] for r in A]
 
 
 # --- the element types ----------------------------------------------------------------------------------------
@@ -208,7 +209,7 @@ class Element:
         basis = self.basis() if callable(self.basis) else self.basis  # (a callable: computed when first needed)
         V = [[eval_exact(b, x) for b in basis] for x in self.nodes]  # V[i][k] = basis_k(node_i)
         # N_i = sum_k C[k][i] basis_k with V C = I
-        C = _solve_exact(V, [[_F(int(i == j)) for j in range(n)] for i in range(n)])
+        C = exact_inverse(V)
         return tuple(_add(*(_scale(basis[k], C[k][i]) for k in range(n))) for i in range(n))
 
     @cached_property
@@ -362,7 +363,7 @@ def _pyramid13_basis():
     nodes = _nodes(_PYR5, _PYR13_EDGES, _PYR14_CENTRE)
     basis = _pyramid_basis(2)
     V = [[eval_exact(b, x) for b in basis] for x in nodes]
-    C = _solve_exact(V, [[_F(int(i == j)) for j in range(14)] for i in range(14)])
+    C = exact_inverse(V)
     N14 = [_add(*(_scale(basis[k], C[k][i]) for k in range(14))) for i in range(14)]
     weight = [_F(-1, 4)] * 4 + [_F(0)] + [_F(1, 2)] * 4 + [_F(0)] * 4  # the centre's value from nodes 0..12
     return tuple(_add(N14[i], _scale(N14[13], weight[i])) for i in range(13))

@@ -55,7 +55,7 @@ from math import comb, factorial, prod
 
 import numpy as np
 
-from .elements import ELEMENTS
+from .elements import ELEMENTS, exact_inverse
 from .lagrange import TYPES as LAGRANGE_TYPES
 
 __all__ = ["JacobianSpace", "space", "formulation", "factor_indices", "factor_tables", "product_table", "FACTOR_KINDS",
@@ -255,22 +255,6 @@ def _children(kind, p):
 
 def _apply(A, o, x):
     return tuple(o[i] + sum(A[i][j] * x[j] for j in range(len(x))) for i in range(len(o)))
-
-
-def exact_inverse(M):
-    """The inverse of a square matrix of Fractions, exact (Gauss-Jordan with row pivoting)."""
-    n = len(M)
-    A = [list(r) + [_F(int(i == j)) for j in range(n)] for i, r in enumerate(M)]
-    for c in range(n):
-        piv = next(r for r in range(c, n) if A[r][c] != 0)
-        A[c], A[piv] = A[piv], A[c]
-        inv = 1 / A[c][c]
-        A[c] = [v * inv for v in A[c]]
-        for r in range(n):
-            if r != c and A[r][c] != 0:
-                f = A[r][c]
-                A[r] = [a - f * b for a, b in zip(A[r], A[c])]
-    return [r[n:] for r in A]
 
 
 #: Factors with more coefficients than this are built by :func:`factor_tables`' direct construction (no
