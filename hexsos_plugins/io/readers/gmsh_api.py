@@ -29,7 +29,7 @@ import meshio
 import numpy as np
 
 from ...cells.elements import ELEMENTS
-from .common import ParseError, make_block
+from .common import ParseError, make_block, node_indexer
 from ..meshio_conventions import shorten
 
 __all__ = ["read_gmsh_api", "GMSH_TO_VTK"]
@@ -101,25 +101,10 @@ def _extract(gmsh, v4: bool) -> meshio.Mesh:
     if (sorted_tags[1:] == sorted_tags[:-1]).any():
         raise ParseError("the file repeats node tags")
     points = xyz[order]
-    contiguous = sorted_tags[0] == 1 and sorted_tags[-1] == len(sorted_tags)
+    find = node_indexer(sorted_tags, "the file")
 
     def index(node_tags):
-        given = node_tags
-        node_tags = np.asarray(node_tags, dtype=np.int64)
-        if contiguous:
-            idx = node_tags.copy() if node_tags is given else node_tags
-            idx -= 1  # in place: no second array of the size of the connectivity
-            if len(idx) == 0 or (int(idx.min()) >= 0 and int(idx.max()) < len(points)):
-                return idx
-            bad = int(idx[(idx < 0) | (idx >= len(points))][0]) + 1
-            raise ParseError(f"an element references node tag {bad}, which the file does not define")
-        idx = np.searchsorted(sorted_tags, node_tags)
-        idx[idx >= len(sorted_tags)] = 0
-        ok = sorted_tags[idx] == node_tags
-        if not ok.all():
-            bad = int(node_tags[~ok][0])
-            raise ParseError(f"an element references node tag {bad}, which the file does not define")
-        return idx
+        return find(node_tags, "an element")
 
     parts = []  # (name, dim, conn, physical tag, entity tag, element tags)
     entities = gmsh.model.getEntities()

@@ -27,7 +27,7 @@ import meshio
 import numpy as np
 
 from ...cells.elements import ELEMENTS
-from .common import ParseError, make_block
+from .common import ParseError, make_block, node_indexer
 
 __all__ = ["read_msh_binary"]
 
@@ -315,24 +315,7 @@ def _assemble(st, v4: bool) -> meshio.Mesh:
         dimtag = dimtag[order] if dimtag is not None else None
         if (sorted_tags[1:] == sorted_tags[:-1]).any():
             raise ParseError("the file repeats node tags")
-    contiguous = len(tags) > 0 and sorted_tags[0] == 1 and sorted_tags[-1] == len(sorted_tags)
-
-    def index(node_tags, what):
-        given = node_tags
-        node_tags = np.asarray(node_tags, dtype=np.int64)
-        if contiguous:
-            idx = node_tags.copy() if node_tags is given else node_tags
-            idx -= 1  # in place: no second array of the size of the connectivity
-            if len(idx) == 0 or (int(idx.min()) >= 0 and int(idx.max()) < len(points)):
-                return idx
-            ok = (idx >= 0) & (idx < len(points))
-            raise ParseError(f"{what} references node tag {int(idx[~ok].flat[0]) + 1}, which $Nodes does not define")
-        idx = np.searchsorted(sorted_tags, node_tags)
-        idx[idx >= len(sorted_tags)] = 0
-        ok = sorted_tags[idx] == node_tags if len(sorted_tags) else np.zeros(idx.shape, dtype=bool)
-        if not ok.all():
-            raise ParseError(f"{what} references node tag {int(node_tags[~ok].flat[0])}, which $Nodes does not define")
-        return idx
+    index = node_indexer(sorted_tags, "$Nodes")
 
     runs = []  # [name, dim, [conn], [physical], [geometrical], [element tags]]
     entities = st["entities"] or {}
