@@ -102,6 +102,14 @@ def test_energies_of_the_ideal_cube_are_their_closed_forms():
     assert e2 == pytest.approx(8 * corner + 27 * op.THETA_B * 2 / chi, rel=1e-13)
     for t in (-2.0, 0.5):
         assert prob.barrier_energy(x, t)[0] == pytest.approx(-9 * np.log(1 - t), rel=1e-13)
+    # the edge term: the unit cube at size 2 has every edge half its size, (4 + 1/4) / 2 - 1 each; at size 1/2
+    # (every edge twice its size) none: only edges shorter than the size pay. The scaled Jacobians are unchanged,
+    # the coefficients change units
+    for size, edge in ((2.0, 1.125), (0.5, 0.0)):
+        pr = op.Problem(P, [("hexahedron", H)], [np.full(1, size)], np.ones(len(P), bool))
+        e_s = pr.barrier_energy(pr.x0(), 0.5)[0]
+        assert e_s == pytest.approx(-9 * np.log(0.5) + op.BETA * 27 * np.log(size ** 3) + op.EDGE_WEIGHT * 12 * edge,
+                                    rel=1e-13)
     # a cube twice as large at size 1 is not ideal: the closed form of the unit cube no longer holds
     prob2 = op.Problem(2 * P, [("hexahedron", H)], [np.ones(1)], np.ones(len(P), bool))
     assert prob2.untangle_energy(prob2.x0(), eps, [np.zeros(1, bool)])[0] != pytest.approx(8 * corner, rel=1e-3)
