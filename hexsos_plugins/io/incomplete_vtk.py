@@ -30,7 +30,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from ..cells.elements import ELEMENTS
+from ..cells.elements import ELEMENTS, eval_exact
 from ..cells.incomplete import COMPLETE
 from .meshio_conventions import GMSH_EXTRA_2D
 
@@ -48,8 +48,10 @@ def _weights(name):
     el, full = ELEMENTS[name], ELEMENTS[COMPLETE[name]]
     index = {x: i for i, x in enumerate(el.nodes)}
     where = np.array([index.get(x, -1) for x in full.nodes], dtype=np.int64)
-    new = full.reference_nodes[where < 0]
-    return where, el.shape_functions(new) if len(new) else np.zeros((0, el.n_nodes))
+    new = [x for x, w in zip(full.nodes, where) if w < 0]
+    # exact weights, rounded once (the float evaluator in monomial form would lose digits at order 4)
+    W = [[float(eval_exact(N, x)) for N in el.shape_polynomials] for x in new]
+    return where, np.array(W, dtype=np.float64).reshape(len(new), el.n_nodes)
 
 
 def incomplete_as_complete(m, notes: list) -> None:
