@@ -90,7 +90,8 @@ def incomplete_as_complete(m, notes: list) -> None:
                 vals = [np.einsum("qn,mn...->mq...", W, arr[conn]).reshape((-1,) + arr.shape[1:])
                         for conn, W in idx_parts]
             else:
-                vals = [np.zeros((conn.shape[0] * W.shape[0],) + arr.shape[1:], dtype=arr.dtype) for conn, W in idx_parts]
+                vals = [np.zeros((conn.shape[0] * W.shape[0],) + arr.shape[1:], dtype=arr.dtype)
+                        for conn, W in idx_parts]
                 zeroed.append(key)
             m.point_data[key] = np.concatenate([arr] + vals)
         m.points = np.concatenate([points] + extra)

@@ -106,11 +106,12 @@ def shorten(msg: str, limit: int = 240) -> str:
 
 
 
-#: Gmsh's incomplete triangles and quadrilaterals of orders 3 and 4 (the boundary of its incomplete cells, see
+#: Gmsh's incomplete triangles and quadrilaterals of orders 3 to 5 (the boundary of its incomplete cells, see
 #: :mod:`hexsos_plugins.cells.incomplete`), which meshio 5.3.5 does not know: Gmsh type -> (name, nodes). Kept as
-#: blocks in Gmsh's node order (corners, then the edges' inner nodes); "quad16i" because meshio's "quad16" is Gmsh's
-#: complete quadrilateral of order 3 (type 36).
-GMSH_EXTRA_2D = {20: ("triangle9", 9), 22: ("triangle12", 12), 39: ("quad12", 12), 40: ("quad16i", 16)}
+#: blocks in Gmsh's node order (corners, then the edges' inner nodes); "quad16i" and "triangle15i" because meshio's
+#: "quad16" and "triangle15" are Gmsh's complete quadrilateral of order 3 and triangle of order 4 (types 36, 23).
+GMSH_EXTRA_2D = {20: ("triangle9", 9), 22: ("triangle12", 12), 24: ("triangle15i", 15), 39: ("quad12", 12),
+                 40: ("quad16i", 16), 41: ("quad20", 20)}
 
 DIMS = {"vertex": 0, "line": 1, "line3": 1, "line4": 1, "triangle": 2, "quad": 2, "polygon": 2, "triangle6": 2,
          "triangle7": 2, "quad8": 2, "quad9": 2, "quad6": 2}
