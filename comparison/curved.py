@@ -15,7 +15,10 @@ thread each, best of ``repeat``:
   lacks, with Gmsh's ``getJacobians`` below the apex) never below our lower bound.
 
 ``--types``: only these cell types (comma-separated names, run whatever their order) or domains (``tet``,
-``cube``, ``prism``, ``pyramid``: their types of the size's orders).
+``cube``, ``prism``, ``pyramid``: their complete types of the size's orders). Gmsh's incomplete cells
+(``tetra16``, ``hexahedron32``, ...: :mod:`hexsos_plugins.cells.incomplete`) run by name; their dense samples are
+VTK's (pyramids: Gmsh's) det J of the complete cell of the same map, and Gmsh's minDetJac only where Gmsh takes them
+(tetrahedra, hexahedron32).
 
 Gmsh 4.15 cannot evaluate prisms of order >= 3 ("FaceClosureFull not implemented for prisms of order 3"): their
 rows have no Gmsh columns.
@@ -53,6 +56,7 @@ def compare(name, X, repeat, sampled, label):
     from comparison.lagrange_oracle import domain_points, gmsh_can_evaluate, gmsh_det, vtk_det
     from hexsos_plugins import check, kernel
     from hexsos_plugins.cells.elements import ELEMENTS
+    from hexsos_plugins.cells.incomplete import COMPLETE
 
     el = ELEMENTS[name]
     P = X.reshape(-1, 3)
@@ -85,7 +89,11 @@ def compare(name, X, repeat, sampled, label):
     sub = np.arange(min(sampled, len(X)))
     pc = np.vstack([domain_points(name, 400, seed=1),
                     el.reference_nodes[el.reference_nodes[:, 2] < 1] if el.domain == "pyramid" else el.reference_nodes])
-    dense = vtk_det(name, X[sub], pc) if el.domain != "pyramid" else gmsh_det(name, X[sub], pc)
+    oracle, Xs = name, X[sub]
+    if name in COMPLETE:  # an incomplete cell: sampled as the complete cell of the same map (VTK or Gmsh has that)
+        oracle = COMPLETE[name]
+        Xs = np.einsum("qn,mna->mqa", el.shape_functions(ELEMENTS[oracle].reference_nodes), Xs)
+    dense = vtk_det(oracle, Xs, pc) if el.domain != "pyramid" else gmsh_det(oracle, Xs, pc)
     out["sampled_below_lower"] = int(np.sum(dense.min(axis=1) < r.lower_bound[sub] - 1e-9 * r.scale[sub]))
     out["max_bracket"] = float(np.max((r.min_det - r.lower_bound) / r.scale))
     return out
@@ -94,11 +102,12 @@ def compare(name, X, repeat, sampled, label):
 def selected(size, types=None):
     """The (name, domain, order) rows of the curved types a run covers: the size's orders, or ``types`` (names,
     any order; domains, the size's orders), a comma-separated string or a list."""
+    from hexsos_plugins.cells.incomplete import TYPES as INCOMPLETE
     from hexsos_plugins.cells.lagrange import TYPES
 
     orders = SIZES[size]["orders"]
     want = [w.strip() for w in (types.split(",") if isinstance(types, str) else types or []) if w.strip()]
-    known = {row[0] for row in TYPES} | {row[1] for row in TYPES}
+    known = {row[0] for row in TYPES} | {row[1] for row in TYPES} | {row[0] for row in INCOMPLETE}
     unknown = [w for w in want if w not in known]
     if unknown:
         raise ValueError(f"types: expected curved cell types or domains ({', '.join(sorted(known))}), found "
@@ -107,6 +116,7 @@ def selected(size, types=None):
     for name, dom, p, *_ in TYPES:
         if (name in want) or (p in orders and (not want or dom in want)):
             rows.append((name, dom, p))
+    rows += [(name, dom, p) for name, dom, p, *_ in INCOMPLETE if name in want]  # Gmsh's incomplete cells: by name
     return rows
 
 

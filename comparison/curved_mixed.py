@@ -32,8 +32,8 @@ def build_mixed(gmsh, order, *, size=0.35, curve=0.03, noise=0.0, seed=0, incomp
     """The mixed mesh of two extruded layers (hexahedra, prisms) under an unstructured cap (tetrahedra, pyramids),
     at ``order``; the high-order nodes (not the corners) moved by ``curve`` sin(...) (a curved mesh) and by
     Gaussian ``noise`` (times the mesh size; noise makes some cells invalid). ``incomplete``: Gmsh's incomplete
-    elements at order 2 (``Mesh.SecondOrderIncomplete``); ``bottom``: the bottom faces a physical group too (21,
-    "Bottom")."""
+    elements (``Mesh.SecondOrderIncomplete``: corner and edge nodes only, at any order); ``bottom``: the bottom
+    faces a physical group too (21, "Bottom")."""
     gmsh.model.add(f"mixed{order}")
     g = gmsh.model.geo
     p = [g.addPoint(x, y, 0, size) for x, y in ((0, 0), (1, 0), (1, 1), (0, 1), (2, 0), (2, 1))]

@@ -556,13 +556,14 @@ def test_legacy_vtk_lagrange_cells_round_trip_and_vtk_sees_the_same_cells(tmp_pa
         assert not np.allclose(ELEMENTS[hexname].det(wrong.points[wb], pc), ours, rtol=1e-6, atol=1e-6)
 
 
-def test_gmsh_incomplete_elements_above_order_two_are_named_in_the_error(tmp_path):
-    """Gmsh makes incomplete elements at order 3 (Mesh.SecondOrderIncomplete): hexsos has no exact element for them;
-    the error names Gmsh's element type (meshio's said only 'np.int32(20)') and what hexsos reads, on one line."""
+def test_gmsh_incomplete_elements_above_order_five_are_named_in_the_error(tmp_path):
+    """Gmsh makes incomplete elements at order 6 (Mesh.SecondOrderIncomplete): hexsos has no exact element for them
+    (it reads those of orders 3-5, tests/test_incomplete.py); the error names Gmsh's element type (meshio's said only
+    'np.int32(52)') and what hexsos reads, on one line."""
     import subprocess
     import sys
 
-    path = tmp_path / "incomplete3.msh"
+    path = tmp_path / "incomplete6.msh"
     gmsh.initialize([], readConfigFiles=False, interruptible=False)
     try:
         gmsh.option.setNumber("General.Terminal", 0)
@@ -572,7 +573,7 @@ def test_gmsh_incomplete_elements_above_order_two_are_named_in_the_error(tmp_pat
         gmsh.option.setNumber("Mesh.MeshSizeMax", 0.6)
         gmsh.option.setNumber("Mesh.SecondOrderIncomplete", 1)
         gmsh.model.mesh.generate(3)
-        gmsh.model.mesh.setOrder(3)
+        gmsh.model.mesh.setOrder(6)
         gmsh.write(str(path))
     finally:
         gmsh.finalize()

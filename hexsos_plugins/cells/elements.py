@@ -22,6 +22,10 @@ tetra20 .. 56  71     29-31  20-56   unit simplex (complete Lagrange, orders 3-5
 hexahedron64.. 72     92-94  64-216  [0, 1]^3 (orders 3-5)
 wedge40 .. 126 73     90,91,106 40-126 unit triangle times [0, 1] (orders 3-5)
 pyramid30 ..91 --     118-120 30-91  the pyramid (orders 3-5, Bergot's space, Gmsh's node order)
+tetra16, 22    --     137, 32 16, 22  Gmsh's incomplete cells of orders 3 and 4 (corner and edge nodes only, Gmsh's
+hexahedron32,44--     99, 100 32, 44  node order, their spaces in :mod:`.incomplete`)
+wedge24, 33    --     111,112 24, 33
+pyramid21, 29  --     125,126 21, 29
 ============== ====== ====== ======= =========================================================
 
 ``voxel`` (VTK 11) is an axis-aligned hexahedron with its nodes in lexicographic order (x fastest); readers
@@ -77,6 +81,8 @@ from itertools import product
 
 import numpy as np
 
+from .incomplete import TYPES as _INCOMPLETE_TYPES
+from .incomplete import incomplete_nodes, space_exponents
 from .lagrange import TYPES as _LAGRANGE_TYPES
 from .lagrange import lagrange_shapes, reference_nodes
 
@@ -420,6 +426,33 @@ def _lagrange_element(name, domain, p, vtk_type, gmsh_type, factor):
 
 for _row in _LAGRANGE_TYPES:
     ELEMENTS[_row[0]] = _lagrange_element(*_row)
+
+
+def _incomplete_basis(domain, p):
+    """The incomplete cell's space (:mod:`.incomplete`) as exact polynomials."""
+    exps = space_exponents(domain, p)
+    if domain != "pyramid":
+        return _monomial_space(exps)
+    omt = {(0, 0, 0): _F(1), (0, 0, 1): _F(-1)}  # 1 - t
+    out = []
+    for i, j, k in exps:
+        f = _mono(i, j, k)
+        for _ in range(max(i, j)):
+            f = _mul(f, omt)
+        out.append(f)
+    return tuple(out)
+
+
+def _incomplete_element(name, domain, p, gmsh_type, factor, _complete):
+    """Gmsh's incomplete cell of order p (:mod:`.incomplete`): corners and edge nodes, Gmsh's node order (VTK has no
+    such cell)."""
+    nodes = incomplete_nodes(domain, p)
+    return Element(name, -1, gmsh_type, domain, p, nodes, _CORNERS[domain], _CORNER_FACES[domain],
+                   lambda: _incomplete_basis(domain, p), tuple(range(len(nodes))), factor)
+
+
+for _row in _INCOMPLETE_TYPES:
+    ELEMENTS[_row[0]] = _incomplete_element(*_row)
 
 #: The cell types in a fixed order: ``CheckResult.cell_type`` holds indices into this tuple.
 CELL_TYPES = tuple(ELEMENTS)

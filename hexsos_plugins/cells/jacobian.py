@@ -19,6 +19,7 @@ tetra (order p) tet (3p - 3)                     84, 220, 455 (p=3-5)
 hexahedron (p)  line (3p - 1)^3                  729, 1728, 3375
 wedge (p)       tri (3p - 2) x line (3p - 1)     324, 792, 1575
 pyramid (p)     line (3p-1)^2 x line (3p-3)      567, 1440, 2925
+incomplete (p)  the complete type's of order p   (tetra16, ..., pyramid29: :mod:`.incomplete`)
 =============== ================================ ===================== ==============
 
 (orders 3-5: the complete Lagrange cells of :mod:`.lagrange`; their simplex factors of high degree are built by
@@ -56,6 +57,7 @@ from math import comb, factorial, prod
 import numpy as np
 
 from .elements import ELEMENTS, exact_inverse
+from .incomplete import TYPES as INCOMPLETE_TYPES
 from .lagrange import TYPES as LAGRANGE_TYPES
 
 __all__ = ["JacobianSpace", "space", "formulation", "factor_indices", "factor_tables", "product_table", "FACTOR_KINDS",
@@ -110,8 +112,8 @@ def _lagrange_factors(domain, p):
     return (("line", 3 * p - 1), ("line", 3 * p - 1), ("line", 3 * p - 3)), (("line", p),) * 3
 
 
-for _name, _domain, _p, *_ in LAGRANGE_TYPES:
-    _FACTORS[_name], _GEOMETRY[_name] = _lagrange_factors(_domain, _p)
+for _name, _domain, _p, *_ in LAGRANGE_TYPES + INCOMPLETE_TYPES:  # (an incomplete cell's map is one of the
+    _FACTORS[_name], _GEOMETRY[_name] = _lagrange_factors(_domain, _p)  # complete space: the same factors)
 
 
 # --- one factor ------------------------------------------------------------------------------------------------

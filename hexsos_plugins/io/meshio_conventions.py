@@ -48,7 +48,7 @@ from ..cells.elements import ELEMENTS
 
 __all__ = ["quiet_meshio", "shorten", "DIMS", "meshio_dimensions", "WEDGE_SWAP", "fix_read_order", "fix_write_order",
            "FORMAT_PACKAGES", "missing_package", "VTK_LAGRANGE_NAMES", "VTK_LINEAR_PYRAMID_FROM", "LEGACY_VTU_HEX",
-           "vtu_version"]
+           "vtu_version", "GMSH_EXTRA_2D"]
 
 #: meshio's names of VTK's Lagrange cells, by the registry's domain
 VTK_LAGRANGE_NAMES = {"tet": "VTK_LAGRANGE_TETRAHEDRON", "cube": "VTK_LAGRANGE_HEXAHEDRON",
@@ -106,8 +106,16 @@ def shorten(msg: str, limit: int = 240) -> str:
 
 
 
+#: Gmsh's incomplete triangles and quadrilaterals of orders 3 to 5 (the boundary of its incomplete cells, see
+#: :mod:`hexsos_plugins.cells.incomplete`), which meshio 5.3.5 does not know: Gmsh type -> (name, nodes). Kept as
+#: blocks in Gmsh's node order (corners, then the edges' inner nodes); "quad16i" and "triangle15i" because meshio's
+#: "quad16" and "triangle15" are Gmsh's complete quadrilateral of order 3 and triangle of order 4 (types 36, 23).
+GMSH_EXTRA_2D = {20: ("triangle9", 9), 22: ("triangle12", 12), 24: ("triangle15i", 15), 39: ("quad12", 12),
+                 40: ("quad16i", 16), 41: ("quad20", 20)}
+
 DIMS = {"vertex": 0, "line": 1, "line3": 1, "line4": 1, "triangle": 2, "quad": 2, "polygon": 2, "triangle6": 2,
          "triangle7": 2, "quad8": 2, "quad9": 2, "quad6": 2}
+DIMS.update({name: 2 for name, _ in GMSH_EXTRA_2D.values()})
 
 
 def _missing_dimensions() -> dict:
@@ -153,11 +161,18 @@ def meshio_dimensions(extra=()):
     from meshio._common import num_nodes_per_cell
     from meshio.gmsh.common import _meshio_to_gmsh_type as to_gmsh
 
-    gadd = {name: el for name, el in ELEMENTS.items() if name not in to_gmsh and el.gmsh_type > 0}
-    nadd = {name: el.n_nodes for name, el in ELEMENTS.items() if name not in num_nodes_per_cell}
-    for name, el in gadd.items():
-        to_gmsh[name] = el.gmsh_type
-        table.setdefault(name, 3)
+    from meshio.gmsh.common import _gmsh_to_meshio_type as from_gmsh
+
+    extra = {name: (g, k, 2) for g, (name, k) in GMSH_EXTRA_2D.items()}
+    extra.update({name: (el.gmsh_type, el.n_nodes, 3) for name, el in ELEMENTS.items() if el.gmsh_type > 0})
+    gadd = {name: v for name, v in extra.items() if name not in to_gmsh}
+    fadd = {g: name for name, (g, _, _) in gadd.items() if g not in from_gmsh}
+    nadd = {name: k for name, (_, k, _) in extra.items() if name not in num_nodes_per_cell}
+    tadd = [name for name in gadd if name not in table]
+    for name, (g, _, dim) in gadd.items():
+        to_gmsh[name] = g
+        table.setdefault(name, dim)
+    from_gmsh.update(fadd)
     num_nodes_per_cell.update(nadd)
     try:
         yield
@@ -166,8 +181,10 @@ def meshio_dimensions(extra=()):
             table.pop(t, None)
         for t in gadd:
             to_gmsh.pop(t, None)
-            if t not in add:
-                table.pop(t, None)
+        for t in tadd:
+            table.pop(t, None)
+        for g in fadd:
+            from_gmsh.pop(g, None)
         for t in nadd:
             num_nodes_per_cell.pop(t, None)
 

@@ -32,7 +32,9 @@ itself; wedge18 is permuted here, which meshio's writer does not do). See :mod:`
   hold are skipped with a warning.
 * Every format: booleans are written as int8, float16 as float32; complex/object/string arrays are
   dropped with a warning; array names with spaces get underscores in ``.vtk``; ``voxel`` blocks are
-  written as ``hexahedron`` blocks. MSH, VTK and VTU have no block boundaries of their own: consecutive
+  written as ``hexahedron`` blocks; Gmsh's incomplete cells of orders 3-4 go into VTK files as the complete
+  Lagrange cells of the same geometry (:mod:`hexsos_plugins.io.incomplete_vtk`). MSH, VTK and VTU have no block
+  boundaries of their own: consecutive
   blocks of the same cell type come back from them as one block (Medit keeps them apart).
 """
 
@@ -52,6 +54,7 @@ from ..cells.elements import VOXEL_TO_VTK
 from ..errors import HexsosError, InvalidInputError, MeshWriteError
 from .mesh import Mesh, copy_block, copy_mesh
 from .formats import NO_WRITE, WRITE_ALIASES, WRITE_BY_EXT, ext_formats, few_exts, format_name, writer_formats
+from .incomplete_vtk import incomplete_as_complete
 from .msh41 import write_msh41
 from .meshio_conventions import (VTK_LINEAR_PYRAMID_FROM, fix_write_order, meshio_dimensions, missing_package,
                                  quiet_meshio, shorten)
@@ -186,6 +189,8 @@ def _prepare(mesh: meshio.Mesh, fmt: str, notes: list):
         else:
             cells.append(copy_block(b))
     m = copy_mesh(mesh, cells=cells)
+    if fmt in ("vtu", "vtk42", "vtk51", "vtk"):
+        incomplete_as_complete(m, notes)  # Gmsh's incomplete cells of orders 3-4: VTK has none
     if fmt in ("vtu", "vtk42", "vtk51", "vtk") and any(b.type == "pyramid14" for b in m.cells):
         _pyramid14_as_13(m, notes)
     if fmt in ("vtu", "vtk42", "vtk51", "vtk") and any(b.type in VTK_LINEAR_PYRAMID_FROM for b in m.cells):

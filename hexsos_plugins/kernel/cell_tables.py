@@ -26,7 +26,7 @@ __all__ = ["Tables", "tables", "write_tables", "tables_fingerprint", "saved_tabl
 _HERE = Path(__file__).parent
 #: The files the tables and the generated code depend on (their fingerprint).
 TABLE_SOURCES = (_HERE.parent / "cells" / "elements.py", _HERE.parent / "cells" / "jacobian.py",
-                 _HERE.parent / "cells" / "lagrange.py", Path(__file__),
+                 _HERE.parent / "cells" / "lagrange.py", _HERE.parent / "cells" / "incomplete.py", Path(__file__),
                  _HERE / "generated.py")
 
 _DIMS = {"line": 1, "tri": 2, "tet": 3}

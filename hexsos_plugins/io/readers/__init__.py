@@ -287,7 +287,8 @@ def _read_any(path, file_format):
     # Gmsh's reader names the element type no reader knows (meshio says only "np.int32(20)"): that first
     typed = [m for f, who, m in failures if who == "gmsh" and "has no meshio cell type" in m]
     if typed:
-        msg = typed[-1] + " (hexsos reads Gmsh's complete elements of orders 1-5 and its incomplete ones of order 2)"
+        msg = typed[-1] + (" (hexsos reads Gmsh's elements of orders 1-5, complete and incomplete: its 3-D cells and "
+                           "the triangles and quadrilaterals of those orders)")
     elif ours:
         msg = ours[-1] + (f" (meshio: {shorten(theirs[-1], 160)})" if theirs else "")
     elif theirs:

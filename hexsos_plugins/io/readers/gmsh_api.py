@@ -30,7 +30,7 @@ import numpy as np
 
 from ...cells.elements import ELEMENTS
 from .common import ParseError, make_block, node_indexer
-from ..meshio_conventions import shorten
+from ..meshio_conventions import GMSH_EXTRA_2D, shorten
 
 __all__ = ["read_gmsh_api", "GMSH_TO_VTK"]
 
@@ -45,7 +45,8 @@ def _meshio_name_and_order(gtype: int):
 
     name = _gmsh_to_meshio_type.get(int(gtype))
     if name is None:
-        return None, None
+        # Gmsh's incomplete triangles and quadrilaterals, which meshio lacks: kept in Gmsh's order
+        return GMSH_EXTRA_2D.get(int(gtype), (None, None))[0], None
     probe = np.arange(200)[None, :]
     try:
         order = np.asarray(_gmsh_to_meshio_order(name, probe))[0]

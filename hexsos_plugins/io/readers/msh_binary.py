@@ -27,6 +27,7 @@ import meshio
 import numpy as np
 
 from ...cells.elements import ELEMENTS
+from ..meshio_conventions import GMSH_EXTRA_2D
 from .common import ParseError, make_block, node_indexer
 
 __all__ = ["read_msh_binary"]
@@ -53,10 +54,12 @@ def _types():
         else:
             perm = np.asarray(_gmsh_to_meshio_order(name, np.arange(k)[None, :]))[0]
         out[int(g)] = (name, k, None if np.array_equal(perm, np.arange(k)) else perm)
-    for name, el in ELEMENTS.items():  # the registry's types meshio lacks (pyramids of order >= 3)
+    for name, el in ELEMENTS.items():  # the registry's types meshio lacks (pyramids of order >= 3, incomplete cells)
         if el.gmsh_type not in out:
             perm = np.array(el.gmsh_to_vtk)
             out[el.gmsh_type] = (name, el.n_nodes, None if np.array_equal(perm, np.arange(el.n_nodes)) else perm)
+    for g, (name, k) in GMSH_EXTRA_2D.items():  # Gmsh's incomplete triangles and quadrilaterals (Gmsh's order)
+        out.setdefault(g, (name, k, None))
     return out
 
 
