@@ -24,7 +24,8 @@ def _cli(*args):
                           text=True, timeout=300)
 
 
-@pytest.mark.parametrize("name", ["tetra", "tetra10", "wedge", "wedge15", "wedge18", "hexahedron20", "hexahedron27"])
+@pytest.mark.parametrize("name", ["tetra", "tetra10", "wedge", "wedge15", "wedge18", "hexahedron20", "hexahedron27",
+                                  "tetra20", "wedge40", "pyramid30", "hexahedron64", "hexahedron32"])
 def test_the_optimizers_coefficients_are_the_kernels(name):
     # the barrier works on its own float coefficients: they must be det J's Bernstein coefficients, the ones the
     # kernel proves on (a wrong sample table, a transposed factor or a missed node would differ by O(1))
@@ -35,7 +36,10 @@ def test_the_optimizers_coefficients_are_the_kernels(name):
     b = cv.fast_coefficients(P, name, conn)
     k = cv.kernel_coefficients(P, name, conn)
     assert b.shape == k.shape
-    assert np.abs(b - k).max() <= 1e-9 * np.abs(k).max()
+    # order 3: the optimizer's float tables (collocation inverses of degree 3p - 1 = 8) are off by up to 2e-9 of the
+    # largest coefficient (measured: pyramid30, hexahedron32); a wrong table is off by O(1)
+    tol = 1e-9 if ELEMENTS[name].order <= 2 else 1e-7
+    assert np.abs(b - k).max() <= tol * np.abs(k).max()
     assert (k.min(axis=1) < 0).any() or np.ptp(k) > 0.01  # the cells are not all the same
 
 

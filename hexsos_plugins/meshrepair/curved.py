@@ -126,7 +126,9 @@ def coefficient_tables(name: str):
     K = np.ones((1, 1))
     for t in Ts:
         K = np.kron(K, t)
-    if not np.allclose(K @ A, np.eye(A.shape[0]), atol=1e-8):
+    # (in doubles through monomials of degree up to 3p - 1 per variable: measured 1e-8 for wedge40, 4e-5 for
+    # pyramid30, 7e-4 for hexahedron64; a space that is not the product is off by O(1))
+    if not np.allclose(K @ A, np.eye(A.shape[0]), atol=1e-2):
         raise AssertionError(f"{name}: det J's Bernstein space is not the product of its factors' spaces")
     dN = np.ascontiguousarray(el.shape_derivatives(X))
     return dN, Tf, sizes
