@@ -45,10 +45,11 @@ import meshio
 import numpy as np
 
 from ..cells.elements import ELEMENTS
+from ..cells.lagrange import gmsh_quad
 
 __all__ = ["quiet_meshio", "shorten", "DIMS", "meshio_dimensions", "WEDGE_SWAP", "fix_read_order", "fix_write_order",
            "FORMAT_PACKAGES", "missing_package", "VTK_LAGRANGE_NAMES", "VTK_LINEAR_PYRAMID_FROM", "LEGACY_VTU_HEX",
-           "vtu_version", "GMSH_EXTRA_2D"]
+           "vtu_version", "GMSH_EXTRA_2D", "LAGRANGE_2D", "vtk_quad_lattice"]
 
 #: meshio's names of VTK's Lagrange cells, by the registry's domain
 VTK_LAGRANGE_NAMES = {"tet": "VTK_LAGRANGE_TETRAHEDRON", "cube": "VTK_LAGRANGE_HEXAHEDRON",
@@ -56,6 +57,37 @@ VTK_LAGRANGE_NAMES = {"tet": "VTK_LAGRANGE_TETRAHEDRON", "cube": "VTK_LAGRANGE_H
 _FROM_VTK_LAGRANGE = {(VTK_LAGRANGE_NAMES[el.domain], el.n_nodes): name for name, el in ELEMENTS.items()
                       if el.lagrange and el.domain in VTK_LAGRANGE_NAMES}
 _TO_VTK_LAGRANGE = {name: vtk for (vtk, _), name in _FROM_VTK_LAGRANGE.items()}
+
+def vtk_quad_lattice(q):
+    """VTK's Lagrange quadrilateral of order q (lattice points, integer coordinates): corners, edges 0-1, 1-2, 3-2,
+    0-3 (each from its lower end), then the inside row by row (x fastest).
+
+    >>> vtk_quad_lattice(3)[4:]
+    [(1, 0), (2, 0), (3, 1), (3, 2), (1, 3), (2, 3), (0, 1), (0, 2), (1, 1), (2, 1), (1, 2), (2, 2)]
+    """
+    out = [(0, 0), (q, 0), (q, q), (0, q)]
+    out += [(i, 0) for i in range(1, q)] + [(q, i) for i in range(1, q)]
+    out += [(i, q) for i in range(1, q)] + [(0, i) for i in range(1, q)]
+    out += [(i, j) for j in range(1, q) for i in range(1, q)]
+    return out
+
+
+def _quad_g2v(q):
+    gm = {x: k for k, x in enumerate(gmsh_quad(q))}
+    return np.array([gm[x] for x in vtk_quad_lattice(q)])
+
+
+#: Gmsh's complete triangles and quadrilaterals of orders 3-5 (meshio's names, Gmsh's node order, as boundary
+#: blocks of curved meshes) -> VTK's Lagrange triangle and quadrilateral. Triangles: the same order (corners, edges
+#: 01, 12, 20, the inner triangle recursively); quadrilaterals: the permutation Gmsh -> VTK
+LAGRANGE_2D = {"triangle10": "VTK_LAGRANGE_TRIANGLE", "triangle15": "VTK_LAGRANGE_TRIANGLE",
+               "triangle21": "VTK_LAGRANGE_TRIANGLE", "quad16": "VTK_LAGRANGE_QUADRILATERAL",
+               "quad25": "VTK_LAGRANGE_QUADRILATERAL", "quad36": "VTK_LAGRANGE_QUADRILATERAL"}
+_G2V_2D = {"quad16": _quad_g2v(3), "quad25": _quad_g2v(4), "quad36": _quad_g2v(5)}
+_FROM_VTK_2D = {("VTK_LAGRANGE_TRIANGLE", 10): "triangle10", ("VTK_LAGRANGE_TRIANGLE", 15): "triangle15",
+                ("VTK_LAGRANGE_TRIANGLE", 21): "triangle21", ("VTK_LAGRANGE_QUADRILATERAL", 16): "quad16",
+                ("VTK_LAGRANGE_QUADRILATERAL", 25): "quad25", ("VTK_LAGRANGE_QUADRILATERAL", 36): "quad36"}
+
 # the Lagrange types whose VTK order is not Gmsh's (meshio permutes none of them)
 _LAGRANGE_G2V = {name: np.array(el.gmsh_to_vtk) for name, el in ELEMENTS.items()
                  if el.order >= 3 and list(el.gmsh_to_vtk) != list(range(el.n_nodes))}
@@ -239,9 +271,18 @@ def fix_read_order(mesh: meshio.Mesh, fmt: str, vtu_version=(0, 1)) -> meshio.Me
     if fmt in _VTK_FORMATS:
         _permute(mesh, "wedge", WEDGE_SWAP)
         for block in mesh.cells:
-            name = _FROM_VTK_LAGRANGE.get((block.type, np.shape(block.data)[1] if np.ndim(block.data) == 2 else -1))
+            key = (block.type, np.shape(block.data)[1] if np.ndim(block.data) == 2 else -1)
+            name = _FROM_VTK_LAGRANGE.get(key)
             if name is not None:
                 block.type = name
+            name = _FROM_VTK_2D.get(key)
+            if name is not None:  # back to Gmsh's order, as the blocks of a Gmsh file are held
+                block.type = name
+                if name in _G2V_2D:
+                    data = np.asarray(block.data)
+                    out = np.empty_like(data)
+                    out[:, _G2V_2D[name]] = data
+                    block.data = out
         if fmt == "vtu" and vtu_version < (2, 2):
             for name, perm in LEGACY_VTU_HEX.items():
                 _permute(mesh, name, perm)
@@ -262,6 +303,10 @@ def fix_write_order(mesh: meshio.Mesh, fmt: str) -> meshio.Mesh:
             for name, perm in LEGACY_VTU_HEX.items():
                 _permute(mesh, name, perm)
         for block in mesh.cells:
+            if block.type in LAGRANGE_2D:
+                if block.type in _G2V_2D:
+                    block.data = np.asarray(block.data)[:, _G2V_2D[block.type]]
+                block.type = LAGRANGE_2D[block.type]
             block.type = _TO_VTK_LAGRANGE.get(block.type, block.type)
     elif fmt in _GMSH_FORMATS:
         _permute(mesh, "wedge18", WEDGE18_V2G)
