@@ -40,7 +40,7 @@ def _unit(name, local):
 
 
 def _vtk_positions(path, pc):
-    r = vtk.vtkXMLUnstructuredGridReader()
+    r = vtk.vtkXMLUnstructuredGridReader() if str(path).endswith(".vtu") else vtk.vtkUnstructuredGridReader()
     r.SetFileName(str(path))
     r.Update()
     cell = r.GetOutput().GetCell(0)
@@ -68,10 +68,16 @@ def test_gmsh_2d_lagrange_cells_go_to_vtk_as_vtks_lagrange_cells(tmp_path, name)
     ctype, pos = _vtk_positions(path, pc)
     assert ctype == (vtk.VTK_LAGRANGE_QUADRILATERAL if quad else vtk.VTK_LAGRANGE_TRIANGLE)
     assert np.abs(pos - _map(pc)).max() < 1e-12
-    # read back: Gmsh's order and name again
-    m = read(path)
-    block = [b for b in m.source.cells if b.type == name]
-    assert len(block) == 1 and np.array_equal(np.asarray(block[0].data), conn)
+    # read back, from .vtu and from legacy .vtk (hexsos' own reader: meshio reads no Lagrange cell there): Gmsh's
+    # order and name again
+    legacy = tmp_path / f"{name}.vtk"
+    write(meshio.Mesh(np.vstack([X, tet]), [(name, conn), ("tetra", len(X) + np.arange(4)[None])]), legacy)
+    assert np.abs(_vtk_positions(legacy, pc)[1] - _map(pc)).max() < 1e-12  # VTK's legacy reader: the same cell
+    for f in (path, legacy):
+        m = read(f)
+        block = [b for b in m.source.cells if b.type == name]
+        assert len(block) == 1 and np.array_equal(np.asarray(block[0].data), conn), f
+        assert np.allclose(m.points[: len(X)], X)
     # two inner (edge or face) nodes exchanged: VTK sees another cell
     Y = X.copy()
     Y[[len(X) - 1, len(X) - 2]] = Y[[len(X) - 2, len(X) - 1]]

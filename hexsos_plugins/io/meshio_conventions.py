@@ -49,7 +49,8 @@ from ..cells.lagrange import gmsh_quad
 
 __all__ = ["quiet_meshio", "shorten", "DIMS", "meshio_dimensions", "WEDGE_SWAP", "fix_read_order", "fix_write_order",
            "FORMAT_PACKAGES", "missing_package", "VTK_LAGRANGE_NAMES", "VTK_LINEAR_PYRAMID_FROM", "LEGACY_VTU_HEX",
-           "vtu_version", "GMSH_EXTRA_2D", "LAGRANGE_2D", "vtk_quad_lattice"]
+           "vtu_version", "GMSH_EXTRA_2D", "LAGRANGE_2D", "vtk_quad_lattice",
+           "lagrange_2d_block"]
 
 #: meshio's names of VTK's Lagrange cells, by the registry's domain
 VTK_LAGRANGE_NAMES = {"tet": "VTK_LAGRANGE_TETRAHEDRON", "cube": "VTK_LAGRANGE_HEXAHEDRON",
@@ -87,6 +88,23 @@ _G2V_2D = {"quad16": _quad_g2v(3), "quad25": _quad_g2v(4), "quad36": _quad_g2v(5
 _FROM_VTK_2D = {("VTK_LAGRANGE_TRIANGLE", 10): "triangle10", ("VTK_LAGRANGE_TRIANGLE", 15): "triangle15",
                 ("VTK_LAGRANGE_TRIANGLE", 21): "triangle21", ("VTK_LAGRANGE_QUADRILATERAL", 16): "quad16",
                 ("VTK_LAGRANGE_QUADRILATERAL", 25): "quad25", ("VTK_LAGRANGE_QUADRILATERAL", 36): "quad36"}
+
+
+
+def lagrange_2d_block(vtk_name: str, data):
+    """A block of VTK's Lagrange triangles or quadrilaterals (meshio's ``VTK_LAGRANGE_TRIANGLE`` /
+    ``_QUADRILATERAL``) of orders 3-5 as (meshio's Gmsh name, connectivity in Gmsh's order); None for any other
+    block."""
+    data = np.asarray(data)
+    name = _FROM_VTK_2D.get((vtk_name, data.shape[1] if data.ndim == 2 else -1))
+    if name is None:
+        return None
+    if name in _G2V_2D:
+        out = np.empty_like(data)
+        out[:, _G2V_2D[name]] = data
+        data = out
+    return name, data
+
 
 # the Lagrange types whose VTK order is not Gmsh's (meshio permutes none of them)
 _LAGRANGE_G2V = {name: np.array(el.gmsh_to_vtk) for name, el in ELEMENTS.items()
@@ -275,14 +293,9 @@ def fix_read_order(mesh: meshio.Mesh, fmt: str, vtu_version=(0, 1)) -> meshio.Me
             name = _FROM_VTK_LAGRANGE.get(key)
             if name is not None:
                 block.type = name
-            name = _FROM_VTK_2D.get(key)
-            if name is not None:  # back to Gmsh's order, as the blocks of a Gmsh file are held
-                block.type = name
-                if name in _G2V_2D:
-                    data = np.asarray(block.data)
-                    out = np.empty_like(data)
-                    out[:, _G2V_2D[name]] = data
-                    block.data = out
+            got = lagrange_2d_block(block.type, block.data)
+            if got is not None:  # back to Gmsh's order, as the blocks of a Gmsh file are held
+                block.type, block.data = got
         if fmt == "vtu" and vtu_version < (2, 2):
             for name, perm in LEGACY_VTU_HEX.items():
                 _permute(mesh, name, perm)

@@ -19,7 +19,7 @@ import meshio
 import numpy as np
 
 from ...cells.elements import ELEMENTS
-from ..meshio_conventions import LEGACY_VTU_HEX
+from ..meshio_conventions import LEGACY_VTU_HEX, lagrange_2d_block
 from .common import ParseError, make_block
 from .tokens import Cursor, is_number, numbers
 
@@ -51,6 +51,8 @@ _VTK_VARIABLE = {2: "poly_vertex", 4: "poly_line", 6: "triangle_strip", 42: "pol
 _VTK_LAGRANGE = {71: "tet", 72: "cube", 73: "prism"}
 _LAGRANGE_BY_SIZE = {(t, el.n_nodes): name for t, dom in _VTK_LAGRANGE.items() for name, el in ELEMENTS.items()
                      if el.lagrange and el.domain == dom}
+# VTK's Lagrange triangle and quadrilateral (boundary blocks of curved meshes): meshio's Gmsh names, Gmsh's order
+_VTK_LAGRANGE_2D = {69: "VTK_LAGRANGE_TRIANGLE", 70: "VTK_LAGRANGE_QUADRILATERAL"}
 _PIXEL_TO_QUAD = np.array([0, 1, 3, 2])
 
 
@@ -270,6 +272,13 @@ def vtk_blocks(conn, offsets, types, cell_data, *, old_hex_order=False):
                 raise ParseError(f"cell {i} has VTK cell type {t} (a Lagrange {_VTK_LAGRANGE[t]} cell) with "
                                  f"{int(sizes[i])} nodes; hexsos knows these cells with {known} nodes (orders 3-5)")
             continue
+        if t in _VTK_LAGRANGE_2D:
+            for k in np.unique(sizes[types == t]):
+                if lagrange_2d_block(_VTK_LAGRANGE_2D[t], np.zeros((1, int(k)), dtype=np.int64)) is None:
+                    i = int(np.flatnonzero((types == t) & (sizes == k))[0])
+                    raise ParseError(f"cell {i} has VTK cell type {t} (a Lagrange {_VTK_LAGRANGE_2D[t][13:].lower()})"
+                                     f" with {int(k)} nodes; hexsos keeps these cells of orders 3-5")
+            continue
         if t in _VTK_VARIABLE or (t not in _VTK_CELLS and t != 7):
             i = int(np.flatnonzero(types == t)[0])
             name = _VTK_VARIABLE.get(t, "unknown")
@@ -291,6 +300,9 @@ def vtk_blocks(conn, offsets, types, cell_data, *, old_hex_order=False):
         data = conn[offsets[s] : offsets[s] + (e - s) * k].reshape(e - s, k)  # a run of one size is contiguous
         if t == 7:
             cells.append(make_block("polygon", data, 2))
+        elif t in _VTK_LAGRANGE_2D:
+            name, data = lagrange_2d_block(_VTK_LAGRANGE_2D[t], data)
+            cells.append(make_block(name, data, 2))
         elif t in _VTK_LAGRANGE:
             name = _LAGRANGE_BY_SIZE[(t, k)]
             if old_hex_order and name in LEGACY_VTU_HEX:
