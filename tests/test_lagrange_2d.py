@@ -105,3 +105,14 @@ def test_a_curved_gmsh_mesh_with_its_boundary_groups_converts_to_vtu(tmp_path):
     r.Update()
     types = {r.GetOutput().GetCellType(i) for i in range(r.GetOutput().GetNumberOfCells())}
     assert {vtk.VTK_LAGRANGE_QUADRILATERAL, vtk.VTK_LAGRANGE_TRIANGLE, vtk.VTK_LAGRANGE_HEXAHEDRON} <= types
+
+
+def test_a_format_without_the_cell_type_says_which_type(tmp_path):
+    from hexsos_plugins.errors import MeshWriteError
+
+    X = _map(_unit("quad16", _gmsh_nodes(36)))
+    mesh = meshio.Mesh(np.vstack([X, np.eye(4, 3) + 2.0]), [("quad16", np.arange(16)[None]),
+                                                            ("tetra", 16 + np.arange(4)[None])])
+    with pytest.raises(MeshWriteError, match="XDMF holds no cells of type 'quad16'.*Gmsh MSH"):
+        write(mesh, tmp_path / "m.xdmf")
+    assert not (tmp_path / "m.xdmf").exists()

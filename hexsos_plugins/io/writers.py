@@ -158,6 +158,10 @@ def write(mesh, path, *, file_format=None) -> list:
         if isinstance(exc, (Exception, SystemExit)):
             said = "; ".join(m for m in log if not m.startswith("Info"))
             reason = str(exc) or said or type(exc).__name__
+            if isinstance(exc, KeyError) and exc.args and exc.args[0] in {b.type for b in out.cells}:
+                # meshio's writers look each cell type up in their own table
+                reason = (f"{format_name(fmt)} holds no cells of type {exc.args[0]!r} (meshio has no such "
+                          "cell type for it); Gmsh MSH (.msh) holds every type hexsos reads")
             raise MeshWriteError(f"{p}: writing {format_name(fmt)} failed: {shorten(reason)}") from exc
         raise
     for m in log:
