@@ -40,6 +40,7 @@ from hexsos_plugins.examples import gmsh_mesh, gmsh_model, structured_grid
 from hexsos_plugins.meshrepair.fidelity import boundary_fidelity, boundary_quads
 from hexsos_plugins.meshrepair import check_cells
 from hexsos_plugins.meshrepair.paper import boundary_vertex_mask, hex_edge_length
+from hexsos_plugins.cells.hexahedron import EDGES
 from hexsos_plugins.cells.quality import scaled_jacobian, summary
 
 BUNNY = os.path.normpath(os.path.join(os.path.dirname(__file__), "..", "..", "shared", "data", "bunny.vtk"))
@@ -157,7 +158,7 @@ def _row(name, P0, H, cells, Q, H2, seconds, success=None):
 def _edge_ratio(P, H):
     """The hexes' shortest edge over their longest: (least over the mesh, hexes below 0.05). The scaled Jacobian
     does not see it: a hex with a collapsed edge can have a high one."""
-    e = np.array([(0, 1), (1, 2), (2, 3), (3, 0), (4, 5), (5, 6), (6, 7), (7, 4), (0, 4), (1, 5), (2, 6), (3, 7)])
+    e = EDGES
     if len(H) == 0:
         return (1.0, 0)
     ln = np.linalg.norm(P[H[:, e[:, 0]]] - P[H[:, e[:, 1]]], axis=2)

@@ -44,6 +44,7 @@ from .elements import VOXEL_TO_VTK
 
 __all__ = [
     "CORNERS",
+    "EDGES",
     "LEX_TO_VTK",
     "VOXEL_TO_VTK",
     "MONOMIALS",
@@ -68,6 +69,9 @@ __all__ = [
 CORNERS = np.array(
     [(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0), (0, 0, 1), (1, 0, 1), (1, 1, 1), (0, 1, 1)], dtype=np.int64
 )
+#: The 12 edges (pairs of VTK nodes): the bottom quad's, the top quad's, then the vertical ones.
+EDGES = np.array([(0, 1), (1, 2), (2, 3), (3, 0), (4, 5), (5, 6), (6, 7), (7, 4), (0, 4), (1, 5), (2, 6), (3, 7)],
+                 dtype=np.int64)
 #: ``LEX_TO_VTK[4 i + 2 j + k]`` is the VTK node at corner (i, j, k), the paper's lexicographic order.
 LEX_TO_VTK = np.array([int(np.flatnonzero((CORNERS == c).all(1))[0]) for c in product((0, 1), repeat=3)])
 #: Exponents (i, j, k) of u^i v^j w^k of the 20 monomials of det J, graded then lexicographic.

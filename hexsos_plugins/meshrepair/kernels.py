@@ -11,6 +11,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
+from ..cells.hexahedron import EDGES
+
 
 @njit(cache=True, inline="always")
 def cofactor(J, C):
@@ -448,11 +450,6 @@ def _barrier_chunk(V, conn, nz, gi, gv, factor, t, s, beta, hexes, want_grad, ec
     return True
 
 
-#: The 12 edges of a hexahedron (VTK node order): :func:`hex_edge_term`
-_HEX_EDGES = np.array([(0, 1), (1, 2), (2, 3), (3, 0), (4, 5), (5, 6), (6, 7), (7, 4), (0, 4), (1, 5), (2, 6), (3, 7)],
-                      dtype=np.int64)
-
-
 @njit(cache=True)
 def hex_edge_term(V, conn, s, gamma, skip, g):
     """Stage 2's edge term of hexes ``conn`` (M, 8) at V: ``gamma sum phi(r)`` over their edges shorter than the
@@ -462,8 +459,8 @@ def hex_edge_term(V, conn, s, gamma, skip, g):
     for m in range(conn.shape[0]):
         inv2 = 1.0 / (s[m] * s[m])
         for q in range(12):
-            a = conn[m, _HEX_EDGES[q, 0]]
-            b = conn[m, _HEX_EDGES[q, 1]]
+            a = conn[m, EDGES[q, 0]]
+            b = conn[m, EDGES[q, 1]]
             if skip[a] or skip[b]:
                 continue
             d0 = V[a, 0] - V[b, 0]

@@ -17,6 +17,7 @@ import time
 
 import numpy as np
 
+from ..cells.hexahedron import EDGES
 from ..cells.quality import SAMPLES
 
 __all__ = ["local_sweeps", "local_untangle", "BAND_BELOW"]
@@ -40,7 +41,7 @@ def _incidence(H, N):
 
 
 def _edge_length(V, H, N):
-    e = np.array([(0, 1), (1, 2), (2, 3), (3, 0), (4, 5), (5, 6), (6, 7), (7, 4), (0, 4), (1, 5), (2, 6), (3, 7)])
+    e = EDGES
     a, b = H[:, e[:, 0]].ravel(), H[:, e[:, 1]].ravel()
     ln = np.linalg.norm(V[a] - V[b], axis=1)
     s = np.bincount(a, ln, minlength=N) + np.bincount(b, ln, minlength=N)
