@@ -116,3 +116,20 @@ def test_a_format_without_the_cell_type_says_which_type(tmp_path):
     with pytest.raises(MeshWriteError, match="XDMF holds no cells of type 'quad16'.*Gmsh MSH"):
         write(mesh, tmp_path / "m.xdmf")
     assert not (tmp_path / "m.xdmf").exists()
+
+
+def test_a_legacy_lagrange_quadrilateral_of_no_known_order_is_refused(tmp_path):
+    # VTK's Lagrange quadrilateral (70) with 5 nodes is no order's: the reader says so, naming the cell
+    from hexsos_plugins.errors import HexsosError
+
+    pts = "\n".join(f"{x} {y} {z}" for x, y, z in [(0, 0, 0), (1, 0, 0), (0, 1, 0), (0, 0, 1), (1, 1, 0)])
+    for nodes, ok in (("5 0 1 4 2 3", False), ("4 0 1 4 2", True)):
+        f = tmp_path / f"q{ok}.vtk"
+        f.write_text("# vtk DataFile Version 4.2\nq\nASCII\nDATASET UNSTRUCTURED_GRID\nPOINTS 5 double\n" + pts
+                     + f"\nCELLS 2 {5 + len(nodes.split())}\n4 0 1 2 3\n{nodes}\nCELL_TYPES 2\n10\n"
+                     + ("9" if ok else "70") + "\n")
+        if ok:  # the same file with a linear quadrilateral reads (the check can pass)
+            assert read(f).n_cells == 1
+        else:
+            with pytest.raises(HexsosError, match="cell 1 has VTK cell type 70 .*quadrilateral.* with 5 nodes"):
+                read(f)

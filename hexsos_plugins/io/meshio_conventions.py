@@ -49,8 +49,7 @@ from ..cells.lagrange import gmsh_quad
 
 __all__ = ["quiet_meshio", "shorten", "DIMS", "meshio_dimensions", "WEDGE_SWAP", "fix_read_order", "fix_write_order",
            "FORMAT_PACKAGES", "missing_package", "VTK_LAGRANGE_NAMES", "VTK_LINEAR_PYRAMID_FROM", "LEGACY_VTU_HEX",
-           "vtu_version", "GMSH_EXTRA_2D", "LAGRANGE_2D", "vtk_quad_lattice",
-           "lagrange_2d_block"]
+           "vtu_version", "GMSH_EXTRA_2D", "LAGRANGE_2D", "vtk_quad_lattice", "lagrange_2d_block"]
 
 #: meshio's names of VTK's Lagrange cells, by the registry's domain
 VTK_LAGRANGE_NAMES = {"tet": "VTK_LAGRANGE_TETRAHEDRON", "cube": "VTK_LAGRANGE_HEXAHEDRON",
@@ -58,6 +57,7 @@ VTK_LAGRANGE_NAMES = {"tet": "VTK_LAGRANGE_TETRAHEDRON", "cube": "VTK_LAGRANGE_H
 _FROM_VTK_LAGRANGE = {(VTK_LAGRANGE_NAMES[el.domain], el.n_nodes): name for name, el in ELEMENTS.items()
                       if el.lagrange and el.domain in VTK_LAGRANGE_NAMES}
 _TO_VTK_LAGRANGE = {name: vtk for (vtk, _), name in _FROM_VTK_LAGRANGE.items()}
+
 
 def vtk_quad_lattice(q):
     """VTK's Lagrange quadrilateral of order q (lattice points, integer coordinates): corners, edges 0-1, 1-2, 3-2,
@@ -88,7 +88,6 @@ _G2V_2D = {"quad16": _quad_g2v(3), "quad25": _quad_g2v(4), "quad36": _quad_g2v(5
 _FROM_VTK_2D = {("VTK_LAGRANGE_TRIANGLE", 10): "triangle10", ("VTK_LAGRANGE_TRIANGLE", 15): "triangle15",
                 ("VTK_LAGRANGE_TRIANGLE", 21): "triangle21", ("VTK_LAGRANGE_QUADRILATERAL", 16): "quad16",
                 ("VTK_LAGRANGE_QUADRILATERAL", 25): "quad25", ("VTK_LAGRANGE_QUADRILATERAL", 36): "quad36"}
-
 
 
 def lagrange_2d_block(vtk_name: str, data):

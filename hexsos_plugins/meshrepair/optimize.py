@@ -356,12 +356,10 @@ class Problem:
             skip = self._edge_skip = np.zeros(self.N, dtype=np.bool_)
             if self.slide is not None:
                 skip[self.slide.idx] = True
-        ge = np.zeros_like(g)
         total = 0.0
         for b in self.blocks:
             if b["hex"]:
-                total += _nb.hex_edge_term(V, b["conn"], b["s"], EDGE_WEIGHT, skip, ge)
-        g += ge
+                total += _nb.hex_edge_term(V, b["conn"], b["s"], EDGE_WEIGHT, skip, g)
         return total
 
     def min_sj(self, V):
