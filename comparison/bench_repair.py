@@ -150,8 +150,9 @@ def _row(name, P0, H, cells, Q, H2, seconds, success=None):
     s1 = summary(scaled_jacobian(Q, [("hexahedron", H2)] + list(cells)))
     fid = _fid(P0, Q, H, cells)
     move = float(np.linalg.norm(Q - P0, axis=1).max())
-    return {"edge_ratio_before": _edge_ratio(P0, H), "edge_ratio_after": _edge_ratio(Q, H2), "mesh": name, "hexes": int(len(H)), "other_cells": int(sum(len(c) for _, c in cells)),
-            "bad_before": bad0, "bad_after": bad1, "certified": bad1 == 0 if success is None else bool(success),
+    return {"mesh": name, "hexes": int(len(H)), "other_cells": int(sum(len(c) for _, c in cells)),
+            "edge_ratio_before": _edge_ratio(P0, H), "edge_ratio_after": _edge_ratio(Q, H2), "bad_before": bad0,
+            "bad_after": bad1, "certified": bad1 == 0 if success is None else bool(success),
             "sj_before": s0, "sj_after": s1, "hausdorff_pct": None if fid is None else 100 * fid / diag,
             "max_move_pct": 100 * move / diag, "seconds": seconds}
 
