@@ -157,26 +157,31 @@ def _row(name, P0, H, cells, Q, H2, seconds, success=None):
             "max_move_pct": 100 * move / diag, "seconds": seconds}
 
 
-def starts(n, names=None):
-    """The default repair on each published mesh from ``n`` starts perturbed by 1e-12 of its diagonal (seeds 1..n):
-    the certified minimum scaled Jacobian of each and their median (a change of rounding alone moves a single run's
-    minimum by up to 0.08)."""
+def _published_meshes(names=None):
+    """(name, hexsos Mesh) of each published mesh (paths under ../shared/data, default :data:`PUBLISHED`), read in
+    place; an absent one is skipped with a line on stderr."""
     from hexsos_plugins.io import read
 
-    print("| mesh | min SJ per start | median |\n|---|---|---|")
     for rel in names or PUBLISHED:
         path = os.path.join(SHARED, rel)
         if not os.path.exists(path):
             print(f"({rel} skipped: {path} absent)", file=sys.stderr)
             continue
-        m = read(path)
+        yield os.path.splitext(os.path.basename(rel))[0], read(path)
+
+
+def starts(n, names=None):
+    """The default repair on each published mesh from ``n`` starts perturbed by 1e-12 of its diagonal (seeds 1..n):
+    the certified minimum scaled Jacobian of each and their median (a change of rounding alone moves a single run's
+    minimum by up to 0.08)."""
+    print("| mesh | min SJ per start | median |\n|---|---|---|")
+    for name, m in _published_meshes(names):
         diag = float(np.linalg.norm(m.points.max(axis=0) - m.points.min(axis=0)))
         got = []
         for seed in range(1, n + 1):
             P = m.points + 1e-12 * diag * np.random.default_rng(seed).standard_normal(m.points.shape)
             r = repair(P, m.hexes)
             got.append(r.stats["min_sj_after"] if r.success else float("nan"))
-        name = os.path.splitext(os.path.basename(rel))[0]
         print(f"| {name} | {' / '.join(f'{x:.3f}' for x in got)} | {np.median(got):.3f} |", flush=True)
 
 
@@ -241,8 +246,6 @@ PUBLISHED = ["hexalab/rockarm.vtk", "bunny.vtk", "hexalab/cat_2.mesh", "hexalab/
 def published(local=False, names=None):
     """The default repair (``local=True``: ``repair(..., local=True)``) on the published meshes: one row each with
     the counts, the scaled Jacobian before / after, Hausdorff, max move, moved vertices and seconds per stage."""
-    from hexsos_plugins.io import read
-
     from comparison.stress import single_fold
 
     # the compiled loops load (or compile, once per installation) before the clock starts: a fold inside a hex and
@@ -254,13 +257,7 @@ def published(local=False, names=None):
     repair(P, H, local=local)
     rows = []
     load0 = os.getloadavg()[0]
-    for rel in names or PUBLISHED:
-        path = os.path.join(SHARED, rel)
-        if not os.path.exists(path):
-            print(f"({rel} skipped: {path} absent)", file=sys.stderr)
-            continue
-        m = read(path)
-        name = os.path.splitext(os.path.basename(rel))[0]
+    for name, m in _published_meshes(names):
         print(f"  {name}: {len(m.hexes)} hexes ...", file=sys.stderr, flush=True)
         t0 = time.perf_counter()
         res = repair(m.points, m.hexes, local=local)

@@ -13,7 +13,7 @@ from functools import lru_cache
 import numpy as np
 
 __all__ = ["VTK_CLASSES", "vtk_cell", "vtk_derivatives", "vtk_det", "gmsh_det", "gmsh_can_evaluate", "reference_cell",
-           "domain_points"]
+           "domain_points", "valid_at_nodes_invalid_inside"]
 
 VTK_CLASSES = {"tet": "vtkLagrangeTetra", "cube": "vtkLagrangeHexahedron", "prism": "vtkLagrangeWedge"}
 
@@ -128,3 +128,32 @@ def domain_points(name, n, seed=0, top=0.999):
     elif dom == "pyramid":
         p[:, 2] *= top
     return p[:n]
+
+
+def valid_at_nodes_invalid_inside(name):
+    """A cell whose det J is > 0 at every node but < 0 somewhere inside (on a dense sample), or None: the first of
+    a seeded sequence of perturbed reference cells (growing noise on every node, then a little on the edge and
+    inner nodes only, which the 44-node hexahedron and the 33-node wedge need) that is so."""
+    from hexsos_plugins.cells.elements import ELEMENTS
+
+    el = ELEMENTS[name]
+    nodes = el.reference_nodes  # (the pyramid's apex: the measure at (0, 0, 1))
+    pts = domain_points(name, 1500, seed=1)
+    rng = np.random.default_rng(17)
+    X0 = reference_cell(name)
+
+    def first(X):
+        ok = (el.det(X, nodes).min(axis=1) > 1e-3) & (el.det(X, pts).min(axis=1) < -1e-3)
+        return X[int(np.argmax(ok))] if ok.any() else None
+
+    for sigma in (0.05, 0.08, 0.1, 0.12, 0.15, 0.2, 0.3):
+        X = first(X0[None] + sigma / el.order * rng.standard_normal((200,) + X0.shape))
+        if X is not None:
+            return X
+    for sigma in (0.015, 0.02, 0.025, 0.03, 0.04):
+        X = np.repeat(X0[None], 2000, axis=0)
+        X[:, el.corners:] += sigma * rng.standard_normal((2000, el.n_nodes - el.corners, 3))
+        X = first(X)
+        if X is not None:
+            return X
+    return None

@@ -175,25 +175,9 @@ def test_flat_cell_is_undecided(name):
     assert r.status[0] == -1 and r.min_det[0] == 0.0
 
 
-def _valid_at_nodes_invalid_inside(name):
-    """A cell whose det J is > 0 at every node but < 0 somewhere inside (on a dense sample): the first of a
-    seeded sequence of perturbed reference cells (growing noise) that is so."""
-    el = ELEMENTS[name]
-    nodes = el.reference_nodes  # (the pyramid's apex: the measure at (0, 0, 1))
-    pts = LO.domain_points(name, 1500, seed=1)
-    rng = np.random.default_rng(17)
-    X0 = LO.reference_cell(name)
-    for sigma in (0.05, 0.08, 0.1, 0.12, 0.15, 0.2):
-        X = X0[None] + sigma / el.order * rng.standard_normal((200,) + X0.shape)
-        ok = (el.det(X, nodes).min(axis=1) > 1e-3) & (el.det(X, pts).min(axis=1) < -1e-3)
-        if ok.any():
-            return X[int(np.argmax(ok))]
-    return None
-
-
 @pytest.mark.parametrize("name", FAST)
 def test_a_cell_valid_at_every_node_but_invalid_inside(name):
-    X = _valid_at_nodes_invalid_inside(name)
+    X = LO.valid_at_nodes_invalid_inside(name)
     assert X is not None, f"no such {name} on the ladder"
     r = _run(name, X)
     assert r.status[0] == 0 and r.min_det[0] < 0
@@ -236,7 +220,7 @@ def test_exact_decisions_agree_with_the_kernel(name):
     kernel's verdicts on a valid and an invalid-inside cell, and its exact lower bound is <= det J sampled."""
     from hexsos_plugins.kernel.exact import decide
 
-    bad = _valid_at_nodes_invalid_inside(name)
+    bad = LO.valid_at_nodes_invalid_inside(name)
     good = _perturbed(name, 1, 41, sigma=0.02)[0]
     for X, want in ((good, 1), (bad, 0)):
         st, lower, witness, value, _ = decide(X, name)
@@ -337,7 +321,7 @@ def _adversarial_tets(name, seed):
     X0 = LO.reference_cell(name)
     el = ELEMENTS[name]
     out = list(_perturbed(name, 3, seed, sigma=0.35 / el.order ** 2))
-    bad = _valid_at_nodes_invalid_inside(name)
+    bad = LO.valid_at_nodes_invalid_inside(name)
     out.append(bad)
     base = _perturbed(name, 1, seed + 1)[0]
     out += [base * 1e-150, base * 1e100, base * 1e150, base + 1e6]

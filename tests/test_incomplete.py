@@ -270,28 +270,9 @@ def test_reference_cell_is_valid_and_its_mirror_invalid(name):
     assert m.status[0] == 0 and abs(m.min_det[0] + 1) < 1e-12
 
 
-def _valid_at_nodes_invalid_inside(name):
-    el = ELEMENTS[name]
-    pts = LO.domain_points(name, 1500, seed=1)
-    rng = np.random.default_rng(17)
-    X0 = LO.reference_cell(name)
-    for sigma in (0.05, 0.08, 0.1, 0.12, 0.15, 0.2, 0.3):
-        X = X0[None] + sigma / el.order * rng.standard_normal((200,) + X0.shape)
-        ok = (el.det(X, el.reference_nodes).min(axis=1) > 1e-3) & (el.det(X, pts).min(axis=1) < -1e-3)
-        if ok.any():
-            return X[int(np.argmax(ok))]
-    for sigma in (0.015, 0.02, 0.025, 0.03, 0.04):  # (hexahedron44, wedge33: only their edge nodes moved, a little)
-        X = np.repeat(X0[None], 2000, axis=0)
-        X[:, el.corners:] += sigma * rng.standard_normal((2000, el.n_nodes - el.corners, 3))
-        ok = (el.det(X, el.reference_nodes).min(axis=1) > 1e-3) & (el.det(X, pts).min(axis=1) < -1e-3)
-        if ok.any():
-            return X[int(np.argmax(ok))]
-    return None
-
-
 @pytest.mark.parametrize("name", FAST)
 def test_a_cell_valid_at_every_node_but_invalid_inside(name):
-    X = _valid_at_nodes_invalid_inside(name)
+    X = LO.valid_at_nodes_invalid_inside(name)
     assert X is not None, f"no such {name} on the ladder"
     r = _run(name, X)
     assert r.status[0] == 0 and r.min_det[0] < 0
@@ -312,7 +293,7 @@ def test_verdicts_are_proofs_in_exact_arithmetic(name):
     X0 = LO.reference_cell(name)
     base = X0 + 0.1 / el.order * rng.standard_normal(X0.shape)
     cells = [X0 + 0.3 / el.order * rng.standard_normal(X0.shape) for _ in range(2)]
-    cells += [_valid_at_nodes_invalid_inside(name), base * 1e-150, base * 1e100, base * [1, 1, 1e-9]]
+    cells += [LO.valid_at_nodes_invalid_inside(name), base * 1e-150, base * 1e100, base * [1, 1, 1e-9]]
     for X in cells:
         r = _run(name, X)
         pts = [tuple(x) for x in el.nodes[: el.corners] if x[2] < 1] + [tuple(Fraction(float(v)) for v in r.argmin[0])]
