@@ -41,8 +41,7 @@ from hexsos_plugins.examples import gmsh_mesh, gmsh_model, structured_grid
 from hexsos_plugins.meshrepair.fidelity import boundary_fidelity, boundary_quads
 from hexsos_plugins.meshrepair import check_cells
 from hexsos_plugins.meshrepair.paper import boundary_vertex_mask, hex_edge_length
-from hexsos_plugins.cells.hexahedron import EDGES
-from hexsos_plugins.cells.quality import scaled_jacobian, summary
+from hexsos_plugins.cells.quality import SHORT_EDGE_RATIO, hex_edge_ratio, scaled_jacobian, summary
 
 BUNNY = os.path.normpath(os.path.join(os.path.dirname(__file__), "..", "..", "shared", "data", "bunny.vtk"))
 
@@ -173,28 +172,24 @@ def _published_meshes(names=None):
 def starts(n, names=None):
     """The default repair on each published mesh from ``n`` starts perturbed by 1e-12 of its diagonal (seeds 1..n):
     the certified minimum scaled Jacobian of each and their median (a change of rounding alone moves a single run's
-    minimum by up to 0.08)."""
-    print("| mesh | min SJ per start | median |\n|---|---|---|")
+    minimum by up to 0.08), and the least shortest / longest edge of a hex of each."""
+    print("| mesh | min SJ per start | median | least shortest / longest edge per start |\n|---|---|---|---|")
     for name, m in _published_meshes(names):
         diag = float(np.linalg.norm(m.points.max(axis=0) - m.points.min(axis=0)))
-        got = []
+        got, ratio = [], []
         for seed in range(1, n + 1):
             P = m.points + 1e-12 * diag * np.random.default_rng(seed).standard_normal(m.points.shape)
             r = repair(P, m.hexes)
             got.append(r.stats["min_sj_after"] if r.success else float("nan"))
-        print(f"| {name} | {' / '.join(f'{x:.3f}' for x in got)} | {np.median(got):.3f} |", flush=True)
+            ratio.append(_edge_ratio(r.points, m.hexes)[0])
+        print(f"| {name} | {' / '.join(f'{x:.3f}' for x in got)} | {np.median(got):.3f} | "
+              f"{' / '.join(f'{x:.4f}' for x in ratio)} |", flush=True)
 
 
 def _edge_ratio(P, H):
-    """The hexes' shortest edge over their longest: (least over the mesh, hexes below 0.05). The scaled Jacobian
-    does not see it: a hex with a collapsed edge can have a high one."""
-    e = EDGES
-    if len(H) == 0:
-        return (1.0, 0)
-    ln = np.linalg.norm(P[H[:, e[:, 0]]] - P[H[:, e[:, 1]]], axis=2)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        r = np.where(ln.max(axis=1) > 0, ln.min(axis=1) / ln.max(axis=1), 0.0)
-    return (float(r.min()), int((r < 0.05).sum()))
+    """The hexes' shortest edge over their longest: (least over the mesh, hexes below ``SHORT_EDGE_RATIO``)."""
+    r = hex_edge_ratio(P, H)
+    return (float(r.min()) if r.size else 1.0, int((r < SHORT_EDGE_RATIO).sum()))
 
 
 def _fid(P, Q, H, cells):

@@ -384,13 +384,14 @@ def test_band_around_the_surface_squares_the_boundary_hexes(tmp_path):
     assert band.stats["min_sj_after"] > on.stats["min_sj_after"] + 0.02, (on.stats["min_sj_after"],
                                                                           band.stats["min_sj_after"])
     bm = boundary_model(Q, [("hexahedron", H)], tolerance=SURFACE_TOLERANCE)
-    diag = np.linalg.norm(Q.max(0) - Q.min(0))
     dist = bm.distance(band.points)
     width = bm.band_width()
     assert dist.max() > 0.5 * width.max()  # off the surface: the room was used
-    # and no further, up to the band's linearization (a vertex step keeps to the band around the tangent plane at
-    # the vertex's nearest point; the coarse sphere curves away from it by a few percent of the band)
-    assert (dist <= 1.1 * width).all(), (dist / width).max()
+    # and not much further: the vertex steps keep to the band (around the tangent plane at each vertex's nearest
+    # point, re-centred every sweep), but stage 2's edge term lengthens the short edges of this coarse sphere's
+    # quads outward, and a vertex whose way back would lower the minimum stays (1.44 band widths measured; the
+    # report says how far: boundary_max_distance)
+    assert (dist <= 1.6 * width).all(), (dist / width).max()
     assert band.stats["boundary_max_distance"] == pytest.approx(dist.max(), rel=1e-9)
     with pytest.raises(InvalidInputError, match="surface_tolerance"):
         hs.repair(Q, H, surface_tolerance=-0.1)
@@ -400,6 +401,30 @@ def test_band_around_the_surface_squares_the_boundary_hexes(tmp_path):
                         "--surface-tolerance", "2"], capture_output=True, text=True, timeout=300)
     assert p.returncode == 2 and "Traceback" not in p.stderr and "surface_tolerance" in p.stderr
     assert len(p.stderr.strip().splitlines()) == 1 and not out.exists()
+
+
+def test_repair_does_not_collapse_hex_edges():
+    """The scaled Jacobian does not see an edge's length: without the edge term and the vertex steps' floor the
+    repair of a 3^3 cubed ball squares its corners by shrinking edges to 3e-4 of their hex's longest (21 hexes below
+    0.05) at min SJ 0.81. With them no hex goes below 0.02, at a higher minimum."""
+    from hexsos_plugins.cells.quality import hex_edge_ratio
+    from hexsos_plugins.meshrepair import localopt
+
+    Q, H = _cubed_ball(3)
+    r = hs.repair(Q, H)
+    ratio = hex_edge_ratio(r.points, H)
+    assert r.success and _certified(r.points, H)
+    assert r.stats["edge_ratio_after"] == ratio.min() > 0.02 and r.stats["short_edge_hexes_after"] == 0
+    assert r.stats["edge_ratio_before"] == hex_edge_ratio(Q, H).min()
+    assert r.stats["min_sj_after"] > 0.9
+    assert "edge ratio" in r.summary() and f"{ratio.min():.4f}" in r.summary()
+    old = localopt.RATIO_FLOOR
+    try:
+        localopt.RATIO_FLOOR = 0.0
+        bare = hs.repair(Q, H)
+    finally:
+        localopt.RATIO_FLOOR = old
+    assert bare.success and bare.stats["edge_ratio_after"] < 0.01 and bare.stats["short_edge_hexes_after"] > 5
 
 
 def test_published_rockarm_default_repair_beats_the_surface_cap():

@@ -29,9 +29,15 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import InvalidInputError
+from .hexahedron import EDGES
 
 __all__ = ["scaled_jacobian", "summary", "sample_scaled_jacobians", "SAMPLES", "LINEAR_TYPES", "IDEAL",
-           "as_cell_list", "sample_edges"]
+           "as_cell_list", "sample_edges", "hex_edge_ratio", "SHORT_EDGE_RATIO"]
+
+#: A hex whose shortest edge is below this fraction of its longest is counted in the reports (an aspect ratio
+#: above 20): the scaled Jacobian does not see an edge's length, and a hex with an edge collapsed toward 0 can
+#: score near 1 at every corner.
+SHORT_EDGE_RATIO = 0.05
 
 #: The cell types with a scaled Jacobian (linear 3-D cells).
 LINEAR_TYPES = ("hexahedron", "tetra", "wedge", "pyramid")
@@ -190,6 +196,15 @@ def scaled_jacobian(points, cells) -> np.ndarray:
         else:
             out.append(np.full(conn.shape[0], np.nan))
     return np.concatenate(out) if out else np.zeros(0)
+
+
+def hex_edge_ratio(points, hexes) -> np.ndarray:
+    """The shortest edge of every hex over its longest, (M,) in [0, 1] (0 where every edge has length 0)."""
+    P = np.asarray(points, dtype=np.float64)
+    H = np.asarray(hexes, dtype=np.int64).reshape(-1, 8)
+    ln = np.linalg.norm(P[H[:, EDGES[:, 0]]] - P[H[:, EDGES[:, 1]]], axis=2)
+    hi = ln.max(axis=1) if len(H) else np.zeros(0)
+    return np.divide(ln.min(axis=1) if len(H) else hi, hi, out=np.zeros_like(hi), where=hi > 0)
 
 
 def summary(sj) -> dict:

@@ -54,7 +54,7 @@ from ..certify import check, validate_arrays
 from ..cells.elements import ELEMENTS
 from ..cells.inputs import checked_block
 from ..errors import InvalidInputError
-from ..cells.quality import IDEAL, LINEAR_TYPES, SAMPLES, summary
+from ..cells.quality import IDEAL, LINEAR_TYPES, SAMPLES, SHORT_EDGE_RATIO, hex_edge_ratio, summary
 from .options import BOUNDARY_MODES, DEFAULT_MARGIN, DEFAULT_RHO, METHODS, SURFACE_TOLERANCE, resolve_boundary
 from .paper import MEMORY, boundary_vertex_mask, hex_edge_length, repair_hex, repair_paper
 from .result import RepairResult, readonly
@@ -449,6 +449,13 @@ def _sj_stats(prefix, sj):
     return {f"min_sj_{prefix}": s["min"], f"p1_sj_{prefix}": s["p1"], f"mean_sj_{prefix}": s["mean"]}
 
 
+def _edge_stats(prefix, P, H):
+    """The least shortest / longest edge of a hex and the hexes below :data:`SHORT_EDGE_RATIO`."""
+    r = hex_edge_ratio(P, H)
+    return {f"edge_ratio_{prefix}": float(r.min()) if r.size else 1.0,
+            f"short_edge_hexes_{prefix}": int((r < SHORT_EDGE_RATIO).sum())}
+
+
 def _linear_blocks(H, others):
     blocks = [("hexahedron", H)]
     pinned_by = []
@@ -483,6 +490,8 @@ def _repair_paper(P0, H, others, pin, *, boundary, rho, margin, max_iter, kernel
     s = res.stats
     s.update(_sj_stats("before", _all_sj(P0, blocks)))
     s.update(_sj_stats("after", _all_sj(res.points, blocks)))
+    s.update(_edge_stats("before", P0, H))
+    s.update(_edge_stats("after", res.points, H))
     s.update(_other_stats(others, o0, o1, res.check.status))
     s["boundary"] = boundary
     s["stage_seconds"] = {"paper": s["seconds"]}
@@ -959,6 +968,8 @@ class _Optimize:
         }
         stats.update(_sj_stats("before", sj0))
         stats.update(_sj_stats("after", sj1))
+        stats.update(_edge_stats("before", P0, H))
+        stats.update(_edge_stats("after", V, H))
         stats.update(_other_stats(others, o0, o, r.status))
         if slide and bm is not None and bm.vertices.size:
             dist = bm.distance(V)

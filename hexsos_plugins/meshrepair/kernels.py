@@ -451,7 +451,7 @@ def _barrier_chunk(V, conn, nz, gi, gv, factor, t, s, beta, hexes, want_grad, ec
 
 
 @njit(cache=True)
-def hex_edge_term(V, conn, s, gamma, skip, g):
+def hex_edge_term(V, conn, s, gamma, g):
     """Stage 2's edge term of hexes ``conn`` (M, 8) at V: ``gamma sum phi(r)`` over their edges shorter than the
     hex's size s (r = edge length / s, ``phi(r) = (r^-2 + r^2) / 2 - 1``, 0 from r = 1 on, continuously
     differentiable), its gradient added to g (N, 3). Returns the term (inf when an edge has length 0)."""
@@ -461,8 +461,6 @@ def hex_edge_term(V, conn, s, gamma, skip, g):
         for q in range(12):
             a = conn[m, EDGES[q, 0]]
             b = conn[m, EDGES[q, 1]]
-            if skip[a] or skip[b]:
-                continue
             d0 = V[a, 0] - V[b, 0]
             d1 = V[a, 1] - V[b, 1]
             d2 = V[a, 2] - V[b, 2]
@@ -540,8 +538,30 @@ def _cell_eval(V, conn, m, G, factor, ref, tau, out, E, C, XU, XV, XW, b, eu, ev
     out[1] = soft
 
 
+@njit(cache=True, inline="always")
+def _edge_ratio2(V, conn, m):
+    """Hex m's shortest edge over its longest, squared (0 when its longest has length 0)."""
+    lo = np.inf
+    hi = 0.0
+    for q in range(12):
+        a = conn[m, EDGES[q, 0]]
+        b = conn[m, EDGES[q, 1]]
+        d0 = V[a, 0] - V[b, 0]
+        d1 = V[a, 1] - V[b, 1]
+        d2 = V[a, 2] - V[b, 2]
+        l2 = d0 * d0 + d1 * d1 + d2 * d2
+        if l2 < lo:
+            lo = l2
+        if l2 > hi:
+            hi = l2
+    if not (hi > 0.0):
+        return 0.0
+    return lo / hi
+
+
 @njit(cache=True)
-def sweep(V, conn, G, factor, order, ptr, inc, loc, proj, step0, tau, max_steps, cell_sj, ref, A, width):
+def sweep(V, conn, G, factor, order, ptr, inc, loc, proj, step0, tau, max_steps, cell_sj, ref, A, width,
+          ratio_floor):
     """One pass over the vertices ``order``: each moves by up to ``max_steps`` accepted steps (see the module
     docstring). ``ptr``/``inc``/``loc``: the hexes around each vertex (CSR) and the vertex's node index in each;
     ``proj`` (N, 3, 3) the projector onto each vertex's freedom; ``step0`` (N,) the first trial length (a fraction
@@ -549,8 +569,16 @@ def sweep(V, conn, G, factor, order, ptr, inc, loc, proj, step0, tau, max_steps,
     with ``width[v]`` finite stays in {x : |A[v] (x - ref[v])| <= width[v]} (``A[v]`` an orthogonal projector:
     onto the normal of a surface vertex, across a curve's tangent, the identity at a corner): a trial position
     outside goes to the nearest point inside, and on the band's edge the part of a step leaving it goes. V is
-    updated in place. Returns the number of accepted steps."""
+    updated in place. ``ratio_floor``: no accepted step takes a hex's shortest edge over its longest below the
+    lesser of its own and this (the scaled Jacobian does not see an edge's length: without it the steps collapsed
+    edges to 1e-5 of their hex's longest). Returns the number of accepted steps."""
     K = G.shape[0]
+    valence = 0
+    for v in range(ptr.shape[0] - 1):
+        if ptr[v + 1] - ptr[v] > valence:
+            valence = ptr[v + 1] - ptr[v]
+    floor2 = np.empty(valence)
+    rf2 = ratio_floor * ratio_floor
     E = np.empty((3, 3))
     C = np.empty((3, 3))
     XU = np.empty((3, 3, 3))
@@ -635,6 +663,7 @@ def sweep(V, conn, G, factor, order, ptr, inc, loc, proj, step0, tau, max_steps,
             for j in range(lo, hi):
                 _cell_eval(V, conn, inc[j], G, factor, m0, tau, ev2, E, C, XU, XV, XW, b, eu, ev, ew)
                 s0 += ev2[1]
+                floor2[j - lo] = min(_edge_ratio2(V, conn, inc[j]), rf2) if rf2 > 0.0 else -1.0
             h = step0[v] / nrm
             ok = False
             for _t in range(12):
@@ -659,6 +688,9 @@ def sweep(V, conn, G, factor, order, ptr, inc, loc, proj, step0, tau, max_steps,
                     if ev2[0] < m1:
                         m1 = ev2[0]
                     if not (m1 >= m0):
+                        break
+                    if rf2 > 0.0 and _edge_ratio2(V, conn, inc[j]) < floor2[j - lo]:
+                        m1 = -np.inf
                         break
                 if m1 >= m0 and s1 < s0:
                     ok = True

@@ -24,10 +24,9 @@ Stage 1, untangling (Garanzha, Garanzha, Kaporin et al. 2021, *Foldover-free map
 Stage 2, quality
     minimize ``-sum_k log(SJ_k - t) - beta sum_p log(b_p / s^3) + gamma sum_e phi(l_e / s)`` (SJ_k the normalized
     corner determinants whose minimum is Verdict's scaled Jacobian, b_p the 27 Bernstein coefficients of every hex,
-    beta = 0.01, l_e the lengths of the hexes' edges shorter than their hex's size s and with no sliding boundary
-    vertex, ``phi(r) = (r^-2 + r^2) / 2 - 1``, gamma = :data:`EDGE_WEIGHT`: without it the rounds shrink edges
-    toward 0, which the scaled Jacobian does not see) with
-    L-BFGS and a backtracking line search that rejects any step making some SJ_k <= t or some b_p <= 0: every
+    beta = 0.01, l_e the lengths of the hexes' edges shorter than their hex's size s, ``phi(r) = (r^-2 + r^2) / 2
+    - 1``, gamma = :data:`EDGE_WEIGHT`: without it the rounds shrink edges toward 0, which the scaled Jacobian
+    does not see) with L-BFGS and a backtracking line search that rejects any step making some SJ_k <= t or some b_p <= 0: every
     accepted iterate has all coefficients positive, i.e. is valid by construction. After each solve t moves 90%
     of the way to the new minimum (measured: 11 rounds to the bunny's plateau, 18 with half); it stops at the
     target, when the minimum stops rising, or at the budget. (beta = 0.1 held the bunny at min SJ 0.15, 0.01 and
@@ -64,16 +63,17 @@ BOUNDARY_WEIGHT = 100.0  # w of stage 1's boundary penalty
 THETA_B = 3.0  # weight of the Bernstein barrier in stage 1 (bunny, sliding, measured: 1 -> 12 outer steps for one fold, min SJ 0.02 after stage 2; 30 -> 2 steps, 0.01-0.06; 3 -> 0.30)
 BETA = 0.01  # weight of the Bernstein log-barrier in stage 2 (measured on the bunny: 0.1 holds the min SJ at 0.15)
 # weight of stage 2's edge term on hexes, ``(r^-2 + r^2) / 2 - 1`` per edge shorter than the hex's size s (r its
-# length over s; 0 from r = 1 on), over the edges with no sliding boundary vertex: the scaled Jacobian does not see
-# an edge's length, and without it the rounds shrank edges toward 0 (on kitten_with_bifur_3 the hexes with an edge
-# under 5% of their longest went 13 -> 435). The repair's minimum depends on rounding (the order of a sum moves it
-# by up to 0.08), so it was measured as the median over three starts perturbed by 1e-12 of the diagonal, without
-# the term -> with it: rockarm 0.785 -> 0.781, the bunny 0.790 -> 0.778, cat_2 0.614 -> 0.718, Dolphin_2 0.602 ->
-# 0.638, hex_torus 0.864 -> 0.864, dinopet_graded 0.730 -> 0.701, warrior_graded 0.657 -> 0.652,
-# kitten_with_bifur_3 0.264 -> 0.258. Single unperturbed runs, also measured: on every edge (0.782, 0.774, 0.684,
-# 0.701, 0.864, 0.711, 0.726, 0.330) it pushed the boundary out of the band (above); 0.05 on every edge (0.766,
-# 0.699, 0.716, 0.629, 0.864, 0.685, 0.723, 0.266); penalizing long edges too moved twice as many vertices by more
-# than 1% of the diagonal.
+# length over s; 0 from r = 1 on), on every edge: the scaled Jacobian does not see an edge's length, and without it
+# the rounds shrank edges toward 0 (on kitten_with_bifur_3 the hexes with an edge under 5% of their longest went
+# 13 -> 435). The repair's minimum depends on rounding (the order of a sum moves it by up to 0.08), so variants were
+# measured as the median over three starts perturbed by 1e-12 of the diagonal, with the vertex steps' floor
+# (:data:`hexsos_plugins.meshrepair.localopt.RATIO_FLOOR`; rockarm, the bunny, cat_2, Dolphin_2, hex_torus,
+# dinopet_graded, warrior_graded, kitten_with_bifur_3): on every edge 0.784, 0.703, 0.692, 0.652, 0.864, 0.658,
+# 0.721, 0.215 (least shortest / longest edge of a hex 0.009-0.038); edges with a boundary vertex against their
+# own input length instead 0.780, 0.693, 0.413, 0.601, 0.864, 0.678, 0.724, 0.235; those against half the size
+# 0.783, 0.560, 0.602, 0.623, 0.864, 0.668, 0.727, 0.215; none on them (as before the floor) 0.781, 0.778, 0.718,
+# 0.638, 0.864, 0.701, 0.652, 0.258, but with edges collapsed to 1e-5 of their hex's longest. Penalizing long edges
+# too moved twice as many vertices by more than 1% of the diagonal.
 EDGE_WEIGHT = 0.02
 # stage 2, a minimum stuck below RESTART_BELOW (patience rounds without gain): t back to RESTART_T x the minimum, up
 # to RESTARTS times. Measured on the bunny with its input perturbed by 1e-13 (rounding decides where stage 2 stalls):
@@ -221,7 +221,6 @@ class Problem:
                                 "Gq": _gm(G), "Gw3": np.ascontiguousarray(Gw), "Gq3": np.ascontiguousarray(G),
                                 "factor": factor, "hex": name == "hexahedron"})
         self.evaluations = 0
-        self._edge_skip = None
 
     # coordinates <-> variables
     def x0(self):
@@ -346,22 +345,15 @@ class Problem:
         return total, (g[self.free].ravel() if grad else None)
 
     def _edges(self, V, g):
-        """Stage 2's edge term (:data:`EDGE_WEIGHT`, :func:`hexsos_plugins.meshrepair.kernels.hex_edge_term`) on the
-        hexes, its gradient added to g, over the edges with no sliding boundary vertex: with them, lengthening
-        the short edges pushed the boundary outward (a 2^3 cubed ball ended 1.4 band widths off its sphere, and
-        pulling it back cost the minimum, 0.98 -> 0.80; seen through the vertices' tangent planes, the same)."""
+        """Stage 2's edge term (:data:`EDGE_WEIGHT`, :func:`hexsos_plugins.meshrepair.kernels.hex_edge_term`) on
+        every edge of the hexes, its gradient added to g."""
         if EDGE_WEIGHT <= 0:
             return 0.0
-        skip = self._edge_skip
-        if skip is None:
-            skip = self._edge_skip = np.zeros(self.N, dtype=np.bool_)
-            if self.slide is not None:
-                skip[self.slide.idx] = True
         ge = np.zeros_like(g)  # summed apart, then added: the order the figures above were measured in
         total = 0.0
         for b in self.blocks:
             if b["hex"]:
-                total += _nb.hex_edge_term(V, b["conn"], b["s"], EDGE_WEIGHT, skip, ge)
+                total += _nb.hex_edge_term(V, b["conn"], b["s"], EDGE_WEIGHT, ge)
         g += ge
         return total
 

@@ -10,6 +10,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..certify import CheckResult
+from ..cells.quality import SHORT_EDGE_RATIO
 
 __all__ = ["RepairResult", "readonly"]
 
@@ -77,9 +78,14 @@ class RepairResult:
 
 
 def sj_line(s):
-    return (f"scaled Jacobian   min {s['min_sj_before']:.4f} -> {s['min_sj_after']:.4f}, 1st percentile "
+    line = (f"scaled Jacobian   min {s['min_sj_before']:.4f} -> {s['min_sj_after']:.4f}, 1st percentile "
             f"{s['p1_sj_before']:.4f} -> {s['p1_sj_after']:.4f}, mean {s['mean_sj_before']:.4f} -> "
             f"{s['mean_sj_after']:.4f}")
+    if "edge_ratio_after" in s:
+        line += (f"\nedge ratio        shortest / longest edge of a hex, least {s['edge_ratio_before']:.4f} -> "
+                 f"{s['edge_ratio_after']:.4f}; hexes below {SHORT_EDGE_RATIO:g}: {s['short_edge_hexes_before']} -> "
+                 f"{s['short_edge_hexes_after']}")
+    return line
 
 
 def summary_optimize(res):
