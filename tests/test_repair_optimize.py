@@ -403,28 +403,65 @@ def test_band_around_the_surface_squares_the_boundary_hexes(tmp_path):
     assert len(p.stderr.strip().splitlines()) == 1 and not out.exists()
 
 
-def test_repair_does_not_collapse_hex_edges():
-    """The scaled Jacobian does not see an edge's length: without the edge term and the vertex steps' floor the
-    repair of a 3^3 cubed ball squares its corners by shrinking edges to 3e-4 of their hex's longest (21 hexes below
-    0.05) at min SJ 0.81. With them no hex goes below 0.02, at a higher minimum."""
+def test_vertex_steps_do_not_collapse_hex_edges(monkeypatch):
+    """The scaled Jacobian does not see an edge's length: on a 3^3 cubed ball held on its surface the vertex steps
+    without a floor raise the minimum 0.34 -> 0.75 by shrinking an edge to 1e-4 of its hex's longest; with the floor
+    (localopt.RATIO_FLOOR) no hex goes below it, and the minimum still rises."""
     from hexsos_plugins.cells.quality import hex_edge_ratio
     from hexsos_plugins.meshrepair import localopt
+    from hexsos_plugins.meshrepair.boundary import boundary_model
+
+    Q, H = _cubed_ball(3)
+    bm = boundary_model(Q, [("hexahedron", H)], tolerance=SURFACE_TOLERANCE)
+    movable = np.ones(len(Q), bool)
+    movable[bm.corners] = False
+    assert hex_edge_ratio(Q, H).min() > 0.5
+    W, info = localopt.local_sweeps(Q, H, movable, boundary=bm, band_below=-np.inf)
+    assert hex_edge_ratio(W, H).min() >= localopt.RATIO_FLOOR * (1 - 1e-9)
+    assert info["min_after"] > info["min_before"] + 0.2 and _certified(W, H)
+    monkeypatch.setattr(localopt, "RATIO_FLOOR", 0.0)
+    W0, _ = localopt.local_sweeps(Q, H, movable, boundary=bm, band_below=-np.inf)
+    assert hex_edge_ratio(W0, H).min() < 0.01
+
+
+def test_repair_reports_edge_ratios():
+    from hexsos_plugins.cells.quality import hex_edge_ratio
 
     Q, H = _cubed_ball(3)
     r = hs.repair(Q, H)
     ratio = hex_edge_ratio(r.points, H)
-    assert r.success and _certified(r.points, H)
+    assert r.success and _certified(r.points, H) and r.stats["min_sj_after"] > 0.9
     assert r.stats["edge_ratio_after"] == ratio.min() > 0.02 and r.stats["short_edge_hexes_after"] == 0
     assert r.stats["edge_ratio_before"] == hex_edge_ratio(Q, H).min()
-    assert r.stats["min_sj_after"] > 0.9
     assert "edge ratio" in r.summary() and f"{ratio.min():.4f}" in r.summary()
-    old = localopt.RATIO_FLOOR
-    try:
-        localopt.RATIO_FLOOR = 0.0
-        bare = hs.repair(Q, H)
-    finally:
-        localopt.RATIO_FLOOR = old
-    assert bare.success and bare.stats["edge_ratio_after"] < 0.01 and bare.stats["short_edge_hexes_after"] > 5
+    P, Hs = structured_grid(2, 2, 1, size=(2.0, 2.0, 1.0))  # unit cubes
+    P[Hs[0, 1]] = P[Hs[0, 0]] + [1e-3, 0, 0]  # an edge of 1e-3; its hex's longest now sqrt(0.999^2 + 1)
+    r2 = hs.repair(P, Hs)
+    assert r2.stats["edge_ratio_before"] == pytest.approx(1e-3 / np.hypot(0.999, 1.0), rel=1e-12)
+    assert r2.stats["short_edge_hexes_before"] == 1
+
+
+def test_edges_the_untangling_shrank_join_stage_2s_region(monkeypatch):
+    """cat_2 (HexaLab, read in place) with every interior vertex moved by up to 1.5 edge lengths (92% of its hexes
+    inverted): the untangling leaves hexes with an edge shrunk almost to nothing and a high scaled Jacobian, which
+    a region chosen by the scaled Jacobian alone leaves out (shortest / longest edge 1e-4 at the end, measured);
+    with them in stage 2's region its edge term lengthens them."""
+    import os
+
+    from conftest import SHARED
+    from hexsos_plugins.meshrepair import driver
+
+    path = os.path.join(SHARED, "hexalab", "cat_2.mesh")
+    if not os.path.exists(path):
+        pytest.skip(f"{path} is absent (published meshes are read in place, never copied)")
+    mesh = hs.read(path)
+    P = stress(mesh.points, mesh.hexes, frac=1.0, amp=1.5, seed=0)
+    r = hs.repair(P, mesh.hexes)
+    assert r.success and _certified(r.points, mesh.hexes)
+    assert r.stats["edge_ratio_after"] > 0.005 and r.stats["min_sj_after"] > 0.6
+    monkeypatch.setattr(driver, "SHORT_EDGE_RATIO", 0.0)  # the region by the scaled Jacobian alone
+    bare = hs.repair(P, mesh.hexes)
+    assert bare.success and bare.stats["edge_ratio_after"] < 0.001
 
 
 def test_published_rockarm_default_repair_beats_the_surface_cap():
