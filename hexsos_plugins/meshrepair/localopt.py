@@ -226,8 +226,9 @@ def local_sweeps(V, H, movable, *, boundary=None, deadline=None, band=0.1, tau=0
 def _follow(boundary, V, V_prev, banded, ref, A):
     """The band's slab re-centred after a sweep at the banded vertices that moved: ``ref`` their nearest point on
     the input surface or curve, ``A`` the projector onto the normal of the nearest input triangle (across the
-    nearest feature segment). A slab kept where a pass began lets a vertex drift off a curved surface as it slides
-    (a 2^3 cubed ball: 1.4 band widths off its sphere)."""
+    nearest feature segment): a slab kept where a pass began is a tangent plane, which a vertex sliding over a
+    curved surface leaves behind. (The cubed balls' excursions out of the band come from stage 2, not from here:
+    re-centring left them where they were.)"""
     moved = banded[np.any(V[banded] != V_prev[banded], axis=1)]
     if moved.size == 0:
         return

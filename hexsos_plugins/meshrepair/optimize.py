@@ -26,10 +26,10 @@ Stage 2, quality
     corner determinants whose minimum is Verdict's scaled Jacobian, b_p the 27 Bernstein coefficients of every hex,
     beta = 0.01, l_e the lengths of the hexes' edges shorter than their hex's size s, ``phi(r) = (r^-2 + r^2) / 2
     - 1``, gamma = :data:`EDGE_WEIGHT`: without it the rounds shrink edges toward 0, which the scaled Jacobian
-    does not see) with L-BFGS and a backtracking line search that rejects any step making some SJ_k <= t or some b_p <= 0: every
-    accepted iterate has all coefficients positive, i.e. is valid by construction. After each solve t moves 90%
-    of the way to the new minimum (measured: 11 rounds to the bunny's plateau, 18 with half); it stops at the
-    target, when the minimum stops rising, or at the budget. (beta = 0.1 held the bunny at min SJ 0.15, 0.01 and
+    does not see) with L-BFGS and a backtracking line search that rejects any step making some SJ_k <= t or some
+    b_p <= 0: every accepted iterate has all coefficients positive, i.e. is valid by construction. After each
+    solve t moves 90% of the way to the new minimum (measured: 11 rounds to the bunny's plateau, 18 with half); it
+    stops at the target, when the minimum stops rising, or at the budget. (beta = 0.1 held the bunny at min SJ 0.15, 0.01 and
     0.001 reached 0.51.)
 
 Boundary, ``boundary="slide"``: every boundary vertex pays ``w |Q (x - r)|^2 / s^2`` (w = 100, Q the projector
