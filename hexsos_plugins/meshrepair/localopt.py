@@ -179,12 +179,6 @@ def local_sweeps(V, H, movable, *, boundary=None, deadline=None, band=0.1, tau=0
     can = np.abs(proj).sum(axis=(1, 2)) > 0
     best, stall = info["min_before"], 0
     V_last = V.copy()
-    banded = np.zeros(0, dtype=np.int64)  # the surface and curve vertices with a band (corners keep their place)
-    if boundary is not None:
-        sliding = np.zeros(N, dtype=bool)
-        sliding[boundary.vertices[boundary.kind < 2]] = True
-        banded = np.flatnonzero(np.isfinite(width) & sliding)
-    V_sweep = V.copy()
     for _ in range(max_sweeps):
         m = float(cell_sj.min())
         if target is not None and m >= target:
@@ -200,9 +194,6 @@ def local_sweeps(V, H, movable, *, boundary=None, deadline=None, band=0.1, tau=0
         info["steps"] += int(lo.sweep(V, H, G, float(factor), verts, ptr, inc, loc, proj, step0, tau, max_steps,
                                       cell_sj, ref, A, width, RATIO_FLOOR))
         info["sweeps"] += 1
-        if banded.size:
-            _follow(boundary, V, V_sweep, banded, ref, A)
-            V_sweep[banded] = V[banded]
         if project is not None and info["sweeps"] % project_every == 0:
             V = _project(project, V, V_last, boundary, H, G, factor, cell_sj, ref, width)
             V_last = V.copy()
@@ -221,20 +212,6 @@ def local_sweeps(V, H, movable, *, boundary=None, deadline=None, band=0.1, tau=0
         V = _project(project, V, V_last, boundary, H, G, factor, cell_sj, ref, width)
     info["min_after"] = float(cell_sj.min()) if cell_sj.size else np.inf
     return V, info
-
-
-def _follow(boundary, V, V_prev, banded, ref, A):
-    """The band's slab re-centred after a sweep at the banded vertices that moved: ``ref`` their nearest point on
-    the input surface or curve, ``A`` the projector onto the normal of the nearest input triangle (across the
-    nearest feature segment): a slab kept where a pass began is a tangent plane, which a vertex sliding over a
-    curved surface leaves behind. (The cubed balls' excursions out of the band come from stage 2, not from here:
-    re-centring left them where they were.)"""
-    moved = banded[np.any(V[banded] != V_prev[banded], axis=1)]
-    if moved.size == 0:
-        return
-    ref[moved] = boundary.closest(V, moved)[moved]
-    rows, Q = boundary.frames(V, moved)
-    A[rows] = Q
 
 
 def _project(project, V, V_last, boundary, H, G, factor, cell_sj, ref, width):
