@@ -195,6 +195,7 @@ def test_repair_filter_in_pvpython(tmp_path):
             out[method] = report(repaired)
             fd = servermanager.Fetch(repaired).GetFieldData()
             out[method]["min_sj_after"] = fd.GetArray("hexsos_min_sj_after").GetValue(0)
+            out[method]["edge_ratio_after"] = fd.GetArray("hexsos_edge_ratio_after").GetValue(0)
         json.dump(out, open(OUT, "w"))
     """)
     for name, expected in (("optimize", default), ("paper", paper)):
@@ -203,6 +204,7 @@ def test_repair_filter_in_pvpython(tmp_path):
         # the same algorithm on ParaView's numpy/scipy: the same mesh up to the optimizer's last digits
         assert np.allclose(disp, expected.displacement, rtol=0, atol=1e-6), name
         assert res[name]["min_sj_after"] == pytest.approx(expected.stats["min_sj_after"], abs=1e-6), name
+        assert res[name]["edge_ratio_after"] == pytest.approx(expected.stats["edge_ratio_after"], abs=1e-6), name
     assert res["optimize"]["min_sj_after"] > res["paper"]["min_sj_after"] + 0.2  # the point of the default
 
 

@@ -628,8 +628,8 @@ class HexSOSRepairFilter(_HexSOSBase):
     ``SetPinNonHexPoints`` (keep points of non-hex cells fixed); for ``"paper"`` also ``SetRho`` (200) and
     ``SetMargin`` (relative margin > 0; None: the kernel's default 1e-3); ``SetMethod`` and ``SetRelaxation``
     for the kernel. Field data also holds the quality before and after: ``hexsos_min_sj_before`` /
-    ``_after``, ``hexsos_p1_sj_after``, ``hexsos_mean_sj_after`` (Verdict's corner scaled Jacobian), and with a
-    sliding boundary ``hexsos_boundary_max_distance`` (the farthest boundary point from the input's surface).
+    ``_after``, ``hexsos_p1_sj_after``, ``hexsos_mean_sj_after`` (Verdict's corner scaled Jacobian),
+    ``hexsos_edge_ratio_after`` (the least shortest / longest edge of a hex), and with a sliding boundary ``hexsos_boundary_max_distance`` (the farthest boundary point from the input's surface).
     A repair that does not prove every cell valid still outputs the best mesh found, with a VTK warning.
     Errors are reported as by :class:`HexSOSCheckFilter`. ``AbortExecuteOn()`` stops between iterations.
     """
@@ -820,7 +820,8 @@ class HexSOSRepairFilter(_HexSOSBase):
         flag.SetName("hexsos_repair_success")
         flag.InsertNextTuple1(1 if result.success else 0)
         out.GetFieldData().AddArray(flag)
-        for key in ("min_sj_before", "min_sj_after", "p1_sj_after", "mean_sj_after", "boundary_max_distance"):
+        for key in ("min_sj_before", "min_sj_after", "p1_sj_after", "mean_sj_after", "edge_ratio_after",
+                    "boundary_max_distance"):
             v = result.stats.get(key)
             if isinstance(v, (int, float)):
                 arr = vtkDataArray.CreateDataArray(11)  # VTK_DOUBLE
