@@ -147,12 +147,15 @@ def _row(name, P0, H, cells, Q, H2, seconds, success=None):
     blocks = [("hexahedron", H)] + list(cells)
     s0 = summary(scaled_jacobian(P0, blocks))
     s1 = summary(scaled_jacobian(Q, [("hexahedron", H2)] + list(cells)))
-    fid = _fid(P0, Q, H, cells)
+    f = _fid(P0, Q, H, cells)
+    fid = None if f is None else f["hausdorff_max"]
+    crossing = None if f is None else (f["self_intersecting_before"], f["self_intersecting_after"])
     move = float(np.linalg.norm(Q - P0, axis=1).max())
     return {"mesh": name, "hexes": int(len(H)), "other_cells": int(sum(len(c) for _, c in cells)),
             "edge_ratio_before": _edge_ratio(P0, H), "edge_ratio_after": _edge_ratio(Q, H2), "bad_before": bad0,
             "bad_after": bad1, "certified": bad1 == 0 if success is None else bool(success),
             "sj_before": s0, "sj_after": s1, "hausdorff_pct": None if fid is None else 100 * fid / diag,
+            "self_intersecting": crossing,
             "max_move_pct": 100 * move / diag, "seconds": seconds}
 
 
@@ -215,8 +218,9 @@ def _edge_ratio(P, H):
 
 
 def _fid(P, Q, H, cells):
+    """pymeshlab's boundary fidelity (:func:`boundary_fidelity`), None without pymeshlab."""
     try:
-        return boundary_fidelity(P, Q, H, cells=cells)["hausdorff_max"]
+        return boundary_fidelity(P, Q, H, cells=cells)
     except Exception:  # noqa: BLE001 - pymeshlab absent: the table says n/a
         return None
 
@@ -289,17 +293,19 @@ def published(local=False, names=None):
           f"{os.cpu_count()} cores)")
     print("\n| mesh | hexes | not valid before -> after | certified | SJ before min / p1 / mean | SJ after min / p1 / "
           "mean | Hausdorff (of diag) | max move (of diag) | moved vertices (> 1% of diag) | shortest / longest edge "
-          "of a hex, least (hexes < 0.05): before -> after | seconds: untangle / quality / vertex steps / certify / "
-          "total |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|")
+          "of a hex, least (hexes < 0.05): before -> after | self-intersecting boundary quads: before -> after | "
+          "seconds: untangle / quality / vertex steps / certify / total |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     for r in rows:
         st = r["stage_seconds"]
         parts = " / ".join(f"{st.get(k, 0.0):.1f}" for k in ("untangle", "quality", "local", "certify"))
         if "fallback" in st:
             parts += f" (+ fallback {st['fallback']:.1f})"
         (a0, n0), (a1, n1) = r["edge_ratio_before"], r["edge_ratio_after"]
+        x = "n/a" if r["self_intersecting"] is None else "{:,} -> {:,}".format(*r["self_intersecting"])
         print(f"| {r['mesh']} | {r['hexes']:,} | {_fmt(r).rsplit(' | ', 1)[0]} | {r['moved']:,} of {r['points']:,} "
-              f"({r['moved_over_1pct']:,}) | {a0:.4f} ({n0:,}) -> {a1:.4f} ({n1:,}) | {parts} / {r['seconds']:.1f} |")
+              f"({r['moved_over_1pct']:,}) | {a0:.4f} ({n0:,}) -> {a1:.4f} ({n1:,}) | {x} | {parts} / "
+              f"{r['seconds']:.1f} |")
     return rows
 
 
