@@ -311,6 +311,8 @@ def run_repair(**kwargs):
            + f"; min scaled Jacobian {s.get('min_sj_before', float('nan')):.3f} -> "
            f"{s.get('min_sj_after', float('nan')):.3f}; {len(res.extra['moved_node_tags'])} nodes moved "
            f"(max {s.get('max_displacement', float('nan')):.3g})")
+    if "edge_ratio_after" in s:
+        msg += (f"; shortest / longest edge of a hex {s['edge_ratio_before']:.3f} -> {s['edge_ratio_after']:.3f}")
     if res.message:
         msg += f"; {res.message}"
     _show_result(after, msg, min_sj=s.get("min_sj_after"))

@@ -478,6 +478,8 @@ def test_panel_repair_button_moves_the_nodes_in_the_model(session):
     r = _results()
     assert r["invalid"] == 0 and r["undecided"] == 0 and r["min_det"] > 0
     assert r["message"].startswith("repair succeeded") and "min scaled Jacobian" in r["message"]
+    assert f"shortest / longest edge of a hex {res.stats['edge_ratio_before']:.3f} -> " \
+           f"{res.stats['edge_ratio_after']:.3f}" in r["message"]
     assert res.stats["min_sj_after"] > 0
     assert gmsh.onelab.getNumber(panel.R_MIN_SJ)[0] == pytest.approx(res.stats["min_sj_after"])
     # the nodes moved in the Gmsh model, to the repaired coordinates, under their own tags
