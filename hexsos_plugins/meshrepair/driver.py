@@ -550,7 +550,7 @@ class _Optimize:
         cell stays above the minimum reached; with ``band`` (the last steps) a second pass lets those of the hexes
         below ``BAND_BELOW`` move within the band (feature corners too)."""
         from . import optimize as opt
-        from .localopt import BAND_BELOW, local_sweeps
+        from .localopt import BAND_BELOW, RATIO_FLOOR, local_sweeps
 
         mv = movable.copy()
         if band:
@@ -567,11 +567,11 @@ class _Optimize:
 
             def project(W, moved):
                 # back onto the input surface (into the band), each vertex as far as every cell stays above the
-                # minimum reached
+                # minimum reached and above the vertex steps' edge floor
                 prob = opt.Problem(W, self.blocks, sizes, np.isin(np.arange(N), moved))
                 m_now = prob.min_sj(W)
                 return opt.project_valid(prob, W, bm.project(W, moved, band=band), moved,
-                                         t=m_now * (1 - 1e-9) if m_now > 0 else None)
+                                         t=m_now * (1 - 1e-9) if m_now > 0 else None, ratio_floor=RATIO_FLOOR)
             return project
 
         t_end = time.perf_counter() + (LOCAL_SECONDS if seconds is None else seconds)
@@ -599,8 +599,9 @@ class _Optimize:
         would have lowered the minimum) moved into it, each as far as every cell stays at the minimum reached (and
         above ``min_sj`` once reached). Pulling them in at 95% of it cost 4% of the minimum on cubed balls
         (3^3 hexes: 0.816 -> 0.783); pulling them in regardless, then vertex steps, more (the bunny 0.601 ->
-        0.583)."""
+        0.583). No projection takes a hex's shortest / longest edge below the vertex steps' floor."""
         from . import optimize as opt
+        from .localopt import RATIO_FLOOR
 
         C = bm.closest(V)
         d = np.sqrt(((V[bm.vertices] - C[bm.vertices]) ** 2).sum(axis=1))
@@ -612,7 +613,8 @@ class _Optimize:
         t_keep = m_now * (1 - 1e-9)
         if self.min_sj is not None and m_now >= self.min_sj:
             t_keep = max(t_keep, self.min_sj)
-        W = opt.project_valid(prob, V, bm.project(V, out), out, t=t_keep if t_keep > 0 else None)
+        W = opt.project_valid(prob, V, bm.project(V, out), out, t=t_keep if t_keep > 0 else None,
+                              ratio_floor=RATIO_FLOOR)
         if not np.array_equal(W, V):
             self._step("into the band", W)
         return W

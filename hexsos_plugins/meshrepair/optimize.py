@@ -53,7 +53,7 @@ import time
 import numpy as np
 
 from ..cells.elements import ELEMENTS
-from ..cells.quality import IDEAL, SAMPLES
+from ..cells.quality import IDEAL, SAMPLES, hex_edge_ratio
 
 __all__ = ["Problem", "untangle", "improve", "hex_bernstein_samples", "bernstein_matrix", "det3", "cof3",
            "bernstein_coefficients", "bernstein_vertex_gradient"]
@@ -627,10 +627,11 @@ def _cell_ok(prob, V, t):
     return out
 
 
-def project_valid(prob, V, target, idx, t=None, tries=8):
+def project_valid(prob, V, target, idx, t=None, tries=8, ratio_floor=0.0):
     """Move the vertices ``idx`` from V toward ``target`` (same shape as V), each as far as it can go without
-    making a cell of ``prob`` infeasible (see :func:`_cell_ok`): vertices of cells that would fail step back by
-    halves, ``tries`` times, then stay. Returns the new coordinates."""
+    making a cell of ``prob`` infeasible (see :func:`_cell_ok`) or, with ``ratio_floor`` > 0, taking a hex's
+    shortest / longest edge below the lesser of its own at V and ``ratio_floor``: vertices of cells that would fail
+    step back by halves, ``tries`` times, then stay. Returns the new coordinates."""
     idx = np.asarray(idx, dtype=np.int64)
     if idx.size == 0:
         return V
@@ -638,13 +639,17 @@ def project_valid(prob, V, target, idx, t=None, tries=8):
     sel = np.zeros(V.shape[0], dtype=bool)
     sel[idx] = True
     base = _cell_ok(prob, V, t)
+    floors = [np.minimum(hex_edge_ratio(V, b["conn"]), ratio_floor) if b["hex"] and ratio_floor > 0 else None
+              for b in prob.blocks]
     W = V
     for k in range(tries + 1):
         a = np.where(sel, alpha, 0.0)
         W = V + a[:, None] * (target - V)
         ok = _cell_ok(prob, W, t)
         back = np.zeros(V.shape[0], dtype=bool)
-        for o, b0, b in zip(ok, base, prob.blocks):
+        for o, b0, b, fl in zip(ok, base, prob.blocks, floors):
+            if fl is not None:
+                o &= hex_edge_ratio(W, b["conn"]) >= fl
             fail = b0 & ~o
             if fail.any():
                 back[b["conn"][fail].ravel()] = True
