@@ -424,6 +424,22 @@ def test_vertex_steps_do_not_collapse_hex_edges(monkeypatch):
     assert hex_edge_ratio(W0, H).min() < 0.01
 
 
+def test_projection_holds_the_edge_floor():
+    """project_valid moves a vertex as far as every cell stays valid; with ``ratio_floor`` also as far as no hex's
+    shortest / longest edge falls below it: a target that collapses an edge of the unit cube is taken whole without,
+    and half way with (the step halves until the ratio is back above the floor)."""
+    from hexsos_plugins.cells.quality import hex_edge_ratio
+
+    P, H = structured_grid(1)
+    prob = op.Problem(P, [("hexahedron", H)], [np.ones(1)], np.ones(len(P), bool))
+    target = P.copy()
+    target[H[0, 1]] = P[H[0, 0]] + [1e-3, 0, 0]  # edge 0-1 of length 1 -> 1e-3
+    W0 = op.project_valid(prob, P, target, [H[0, 1]])
+    assert np.allclose(W0, target, rtol=0, atol=1e-15) and hex_edge_ratio(W0, H)[0] < 0.01
+    W = op.project_valid(prob, P, target, [H[0, 1]], ratio_floor=0.05)
+    assert np.allclose(W[H[0, 1]], (P[H[0, 1]] + target[H[0, 1]]) / 2) and hex_edge_ratio(W, H)[0] >= 0.05
+
+
 def test_repair_reports_edge_ratios():
     from hexsos_plugins.cells.quality import hex_edge_ratio
 
