@@ -781,7 +781,6 @@ class _Optimize:
                 V = self._local(V, movable, bm, others, deadline1)
             if untangled:
                 rounds_left = self.max_rounds
-                short_floor = np.minimum(hex_edge_ratio(P0, H), SHORT_EDGE_RATIO)
                 sj = cell_scaled_jacobians(V, blocks)
                 m = min(float(s.min()) for s in sj if s.size)
                 # the region: cells below tau and their rings; a target gets at least the default's region (with
@@ -791,10 +790,6 @@ class _Optimize:
                     tau = max(tau, self.min_sj + 0.1)
                 while rounds_left > 0:
                     low = [s < tau for s in sj]
-                    # and the hexes whose edges the untangling shrank (shortest / longest below the lesser of the
-                    # input's and SHORT_EDGE_RATIO): their scaled Jacobian can be high, and only the edge term
-                    # lengthens them (the perturbed cat_2 ended at 1e-4 without)
-                    low[0] = low[0] | (hex_edge_ratio(V, H) < short_floor)
                     if not any(lw.any() for lw in low):
                         break
                     core = _dilate(low, blocks, N, self.rings)
