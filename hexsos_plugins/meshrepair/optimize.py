@@ -29,8 +29,8 @@ Stage 2, quality
     does not see) with L-BFGS and a backtracking line search that rejects any step making some SJ_k <= t or some
     b_p <= 0: every accepted iterate has all coefficients positive, i.e. is valid by construction. After each
     solve t moves 90% of the way to the new minimum (measured: 11 rounds to the bunny's plateau, 18 with half); it
-    stops at the target, when the minimum stops rising, or at the budget. (beta = 0.1 held the bunny at min SJ 0.15, 0.01 and
-    0.001 reached 0.51.)
+    stops at the target, when the minimum stops rising, or at the budget. (beta = 0.1 held the bunny at min SJ
+    0.15, 0.01 and 0.001 reached 0.51.)
 
 Boundary, ``boundary="slide"``: every boundary vertex pays ``w |Q (x - r)|^2 / s^2`` (w = 100, Q the projector
 onto its input normal, or onto the plane normal to its feature edge, r its reference on the input surface), so it
@@ -67,13 +67,13 @@ BETA = 0.01  # weight of the Bernstein log-barrier in stage 2 (measured on the b
 # the rounds shrank edges toward 0 (on kitten_with_bifur_3 the hexes with an edge under 5% of their longest went 13
 # -> 435). The repair's minimum depends on rounding (the order of a sum moves it by up to 0.08), so variants were
 # measured as the median over three starts perturbed by 1e-12 of the diagonal, with the vertex steps' floor
-# (:data:`hexsos_plugins.meshrepair.localopt.RATIO_FLOOR`; before stage 2's region took the hexes with shrunk edges;
-# rockarm, the bunny, cat_2, Dolphin_2, hex_torus, dinopet_graded, warrior_graded, kitten_with_bifur_3): on every
-# edge 0.784, 0.703, 0.692, 0.652, 0.864, 0.658, 0.721, 0.215 (least shortest / longest edge of a hex 0.009-0.038);
-# edges with a boundary vertex against their own input length instead 0.780, 0.693, 0.413, 0.601, 0.864, 0.678,
-# 0.724, 0.235; those against half the size 0.783, 0.560, 0.602, 0.623, 0.864, 0.668, 0.727, 0.215; none on them and
-# no floor (the code before) 0.781, 0.778, 0.718, 0.638, 0.864, 0.701, 0.652, 0.258, but with edges collapsed to 1e-5
-# of their hex's longest. Penalizing long edges too moved twice as many vertices by more than 1% of the diagonal.
+# (:data:`hexsos_plugins.meshrepair.localopt.RATIO_FLOOR`; before the projections held the floor too; rockarm, the
+# bunny, cat_2, Dolphin_2, hex_torus, dinopet_graded, warrior_graded, kitten_with_bifur_3): on every edge 0.784,
+# 0.703, 0.692, 0.652, 0.864, 0.658, 0.721, 0.215 (least shortest / longest edge of a hex 0.009-0.038); edges with a
+# boundary vertex against their own input length instead 0.780, 0.693, 0.413, 0.601, 0.864, 0.678, 0.724, 0.235;
+# those against half the size 0.783, 0.560, 0.602, 0.623, 0.864, 0.668, 0.727, 0.215; none on them and no floor (the
+# code before) 0.781, 0.778, 0.718, 0.638, 0.864, 0.701, 0.652, 0.258, but with edges collapsed to 1e-5 of their
+# hex's longest. Penalizing long edges too moved twice as many vertices by more than 1% of the diagonal.
 EDGE_WEIGHT = 0.02
 # stage 2, a minimum stuck below RESTART_BELOW (patience rounds without gain): t back to RESTART_T x the minimum, up
 # to RESTARTS times. Measured on the bunny with its input perturbed by 1e-13 (rounding decides where stage 2 stalls):
