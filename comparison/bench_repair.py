@@ -41,7 +41,7 @@ from hexsos_plugins.examples import gmsh_mesh, gmsh_model, structured_grid
 from hexsos_plugins.meshrepair.fidelity import boundary_fidelity, boundary_quads
 from hexsos_plugins.meshrepair import check_cells
 from hexsos_plugins.meshrepair.paper import boundary_vertex_mask, hex_edge_length
-from hexsos_plugins.cells.quality import SHORT_EDGE_RATIO, hex_edge_ratio, scaled_jacobian, summary
+from hexsos_plugins.cells.quality import edge_ratio_summary, scaled_jacobian, summary
 
 BUNNY = os.path.normpath(os.path.join(os.path.dirname(__file__), "..", "..", "shared", "data", "bunny.vtk"))
 
@@ -152,7 +152,8 @@ def _row(name, P0, H, cells, Q, H2, seconds, success=None):
     crossing = None if f is None else (f["self_intersecting_before"], f["self_intersecting_after"])
     move = float(np.linalg.norm(Q - P0, axis=1).max())
     return {"mesh": name, "hexes": int(len(H)), "other_cells": int(sum(len(c) for _, c in cells)),
-            "edge_ratio_before": _edge_ratio(P0, H), "edge_ratio_after": _edge_ratio(Q, H2), "bad_before": bad0,
+            "edge_ratio_before": edge_ratio_summary(P0, H), "edge_ratio_after": edge_ratio_summary(Q, H2),
+            "bad_before": bad0,
             "bad_after": bad1, "certified": bad1 == 0 if success is None else bool(success),
             "sj_before": s0, "sj_after": s1, "hausdorff_pct": None if fid is None else 100 * fid / diag,
             "self_intersecting": crossing,
@@ -186,7 +187,7 @@ def starts(n, names=None):
             P = m.points + 1e-12 * diag * np.random.default_rng(seed).standard_normal(m.points.shape)
             r = repair(P, m.hexes)
             got.append(r.stats["min_sj_after"] if r.success else float("nan"))
-            ratio.append(_edge_ratio(r.points, m.hexes)[0])
+            ratio.append(edge_ratio_summary(r.points, m.hexes)[0])
             far = max(far, r.stats.get("boundary_max_distance", 0.0) / diag)
         print(f"| {name} | {' / '.join(f'{x:.3f}' for x in got)} | {np.median(got):.3f} | "
               f"{' / '.join(f'{x:.4f}' for x in ratio)} | {100 * far:.2f}% |", flush=True)
@@ -209,12 +210,6 @@ def perturbed(names=None, amps=(1.5, 3.0)):
                   f"{r.stats['invalid_after'] + r.stats['undecided_after']:,} | {'yes' if r.success else 'NO'} | "
                   f"{r.stats['min_sj_after']:.3f} / {r.stats['p1_sj_after']:.3f} / {r.stats['mean_sj_after']:.3f} | "
                   f"{r.stats['edge_ratio_after']:.4f} | {t:.1f} |", flush=True)
-
-
-def _edge_ratio(P, H):
-    """The hexes' shortest edge over their longest: (least over the mesh, hexes below ``SHORT_EDGE_RATIO``)."""
-    r = hex_edge_ratio(P, H)
-    return (float(r.min()) if r.size else 1.0, int((r < SHORT_EDGE_RATIO).sum()))
 
 
 def _fid(P, Q, H, cells):

@@ -32,7 +32,7 @@ from ..errors import InvalidInputError
 from .hexahedron import EDGES
 
 __all__ = ["scaled_jacobian", "summary", "sample_scaled_jacobians", "SAMPLES", "LINEAR_TYPES", "IDEAL",
-           "as_cell_list", "sample_edges", "hex_edge_ratio", "SHORT_EDGE_RATIO"]
+           "as_cell_list", "sample_edges", "hex_edge_ratio", "edge_ratio_summary", "SHORT_EDGE_RATIO"]
 
 #: A hex whose shortest edge is below this fraction of its longest is counted in the reports (an aspect ratio
 #: above 20): the scaled Jacobian does not see an edge's length, and a hex with an edge collapsed toward 0 can
@@ -205,6 +205,12 @@ def hex_edge_ratio(points, hexes) -> np.ndarray:
     ln = np.linalg.norm(P[H[:, EDGES[:, 0]]] - P[H[:, EDGES[:, 1]]], axis=2)
     hi = ln.max(axis=1) if len(H) else np.zeros(0)
     return np.divide(ln.min(axis=1) if len(H) else hi, hi, out=np.zeros_like(hi), where=hi > 0)
+
+
+def edge_ratio_summary(points, hexes) -> tuple:
+    """(least shortest / longest edge of a hex, hexes below :data:`SHORT_EDGE_RATIO`); (1.0, 0) without hexes."""
+    r = hex_edge_ratio(points, hexes)
+    return (float(r.min()) if r.size else 1.0, int((r < SHORT_EDGE_RATIO).sum()))
 
 
 def summary(sj) -> dict:

@@ -54,7 +54,7 @@ from ..certify import check, validate_arrays
 from ..cells.elements import ELEMENTS
 from ..cells.inputs import checked_block
 from ..errors import InvalidInputError
-from ..cells.quality import IDEAL, LINEAR_TYPES, SAMPLES, SHORT_EDGE_RATIO, hex_edge_ratio, summary
+from ..cells.quality import IDEAL, LINEAR_TYPES, SAMPLES, edge_ratio_summary, summary
 from .options import BOUNDARY_MODES, DEFAULT_MARGIN, DEFAULT_RHO, METHODS, SURFACE_TOLERANCE, resolve_boundary
 from .paper import MEMORY, boundary_vertex_mask, hex_edge_length, repair_hex, repair_paper
 from .result import RepairResult, readonly
@@ -450,10 +450,9 @@ def _sj_stats(prefix, sj):
 
 
 def _edge_stats(prefix, P, H):
-    """The least shortest / longest edge of a hex and the hexes below :data:`SHORT_EDGE_RATIO`."""
-    r = hex_edge_ratio(P, H)
-    return {f"edge_ratio_{prefix}": float(r.min()) if r.size else 1.0,
-            f"short_edge_hexes_{prefix}": int((r < SHORT_EDGE_RATIO).sum())}
+    """The report's keys of :func:`hexsos_plugins.cells.quality.edge_ratio_summary`."""
+    least, short = edge_ratio_summary(P, H)
+    return {f"edge_ratio_{prefix}": least, f"short_edge_hexes_{prefix}": short}
 
 
 def _linear_blocks(H, others):
