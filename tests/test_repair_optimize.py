@@ -424,6 +424,72 @@ def test_vertex_steps_do_not_collapse_hex_edges(monkeypatch):
     assert hex_edge_ratio(W0, H).min() < 0.01
 
 
+def test_stage_two_holds_the_edge_floor(monkeypatch):
+    """Stage 2's rounds (improve) with ``ratio_floor``: no iterate takes a hex's shortest / longest edge below the
+    least of its own, the floor and half its own at ``ratio_ref``. With the edge term off, on a 4^3 cubed ball
+    sliding on its sphere, the rounds without the floor raise the minimum by shrinking an edge to about 1e-3 of
+    its hex's longest; with it every hex ends at 0.05 or above, valid."""
+    from hexsos_plugins.cells.quality import hex_edge_ratio
+    from hexsos_plugins.meshrepair.boundary import boundary_model
+    from hexsos_plugins.meshrepair.driver import cell_size
+
+    monkeypatch.setattr(op, "EDGE_WEIGHT", 0.0)
+    Q, H = _cubed_ball(4)
+    bm = boundary_model(Q, [("hexahedron", H)], tolerance=0.0)
+    free = np.ones(len(Q), bool)
+    free[bm.corners] = False
+    out = {}
+    for rf in (0.0, 0.05):
+        prob = op.Problem(Q, [("hexahedron", H)], [cell_size(Q, "hexahedron", H)], free, slide=bm.slide(Q, free))
+        info = op.improve(prob, max_rounds=40, ratio_floor=rf, ratio_ref=Q,
+                          project=lambda W, p=prob: bm.project(W, p.slide.idx))
+        out[rf] = (hex_edge_ratio(prob.V, H).min(), info["min_sj"], prob.V)
+    assert out[0.0][0] < 0.01
+    assert out[0.05][0] >= 0.05 * (1 - 1e-12) and out[0.05][1] > 0.4 and _certified(out[0.05][2], H)
+    # the bound itself: finite at the start, inf once a hex's shortest edge goes below it
+    prob = op.Problem(Q, [("hexahedron", H)], [cell_size(Q, "hexahedron", H)], free)
+    prob.hold_edge_ratios(0.05, ref=Q)
+    x = prob.x0()
+    assert np.isfinite(prob.barrier_energy(x, 0.0, grad=False)[0])
+    h = int(np.argmax(hex_edge_ratio(Q, H)))
+    a, b = H[h, 0], H[h, 1]
+    W = Q.copy()
+    W[b] = Q[a] + 0.04 * (Q[b] - Q[a])  # edge a-b at 4% of its length: its hex still valid, below the floor
+    assert op.Problem(W, [("hexahedron", H)], [np.ones(len(H))], np.ones(len(Q), bool)).feasible_valid(W)
+    assert prob.barrier_energy(W[prob.free].ravel(), -1.0, grad=False)[0] == np.inf
+    prob.hold_edge_ratios(0.0)
+    assert np.isfinite(prob.barrier_energy(W[prob.free].ravel(), -1.0, grad=False)[0])
+
+
+def test_rounds_that_lower_the_minimum_are_undone(monkeypatch):
+    """Stage 2's rounds may end below where they began (the barrier lets the minimum fall to its bound t): the
+    driver then takes back the mesh it gave them and ends the stage. A stand-in for the rounds that lowers the
+    minimum leaves the repair exactly where one that changes nothing does, with its rounds counted as undone."""
+    from hexsos_plugins.meshrepair import optimize as opt
+
+    Q, H = _cubed_ball(3)
+    calls = []
+
+    def worse(prob, **kw):
+        V = prob.V.copy()
+        v = prob.free[np.argmax(np.linalg.norm(V[prob.free], axis=1) < 0.2)]  # a vertex near the centre
+        V[v] *= 1.5  # its hexes stay valid, their scaled Jacobian falls
+        prob.V = V
+        calls.append(prob.min_sj(V))
+        return {"rounds": 10, "iterations": 7, "reached": False, "min_sj": calls[-1]}
+
+    def same(prob, **kw):
+        return {"rounds": 10, "iterations": 7, "reached": False, "min_sj": prob.min_sj(prob.V)}
+
+    monkeypatch.setattr(opt, "improve", worse)
+    r1 = hs.repair(Q, H)
+    monkeypatch.setattr(opt, "improve", same)
+    r0 = hs.repair(Q, H)
+    assert calls and min(calls) < r0.stats["min_sj_after"]
+    assert r1.success and r1.stats["quality_rounds_undone"] == 10 and r0.stats["quality_rounds_undone"] == 0
+    assert np.array_equal(r1.points, r0.points)
+
+
 def test_projection_holds_the_edge_floor():
     """project_valid moves a vertex as far as every cell stays valid; with ``ratio_floor`` also as far as no hex's
     shortest / longest edge falls below it: a target that collapses an edge of the unit cube is taken whole without,
@@ -477,3 +543,4 @@ def test_published_rockarm_default_repair_beats_the_surface_cap():
     assert r.stats["boundary_max_distance"] < 0.02 * diag
     on = hs.repair(mesh.points, mesh.hexes, surface_tolerance=0.0)
     assert on.success and on.stats["min_sj_after"] < 0.6
+

@@ -651,6 +651,7 @@ class _Optimize:
 
     def run(self) -> RepairResult:
         from . import optimize as opt
+        from .localopt import RATIO_FLOOR
 
         P0, H, others = self.P0, self.H, self.others
         N = P0.shape[0]
@@ -805,14 +806,23 @@ class _Optimize:
                     if self.min_sj is not None and (target is None or self.min_sj < target):
                         target = self.min_sj
                     info = opt.improve(prob, target=target, max_rounds=min(rounds_left, CHUNK_ROUNDS),
-                                       deadline=deadline, project=project, on_step=self._step)
-                    V = prob.V
+                                       deadline=deadline, project=project, on_step=self._step,
+                                       ratio_floor=opt.ROUNDS_RATIO_FLOOR, ratio_ref=P0)
                     for k in ("rounds", "iterations"):
                         info2[k] += info.get(k, 0)
                     info2["reached"] = info.get("reached", False)
                     rounds_left -= max(info.get("rounds", 0), 1)
-                    sj = cell_scaled_jacobians(V, blocks)
-                    m_new = min(float(s.min()) for s in sj if s.size)
+                    sj_new = cell_scaled_jacobians(prob.V, blocks)
+                    m_new = min(float(s.min()) for s in sj_new if s.size)
+                    if m_new < m:
+                        # rounds that end below where they began are undone, and stage 2 ends: the barrier lets
+                        # the minimum fall to its bound t below the start (kitten_with_bifur_3: 10 rounds took
+                        # the vertex steps' 0.225 to 0.170, and its 30 s of rounds ended at 0.207)
+                        info2["undone_rounds"] = info2.get("undone_rounds", 0) + info.get("rounds", 0)
+                        break
+                    V, sj = prob.V, sj_new
+                    if m_new < m + 1e-3 and not info.get("reached"):
+                        break  # rounds that gained nothing (kitten_with_bifur_3 with the edge floor: 30 s of them)
                     # the cells left out (scaled Jacobian >= tau) cap the minimum: widen the region while it pays
                     if ((self.min_sj is None or m_new < self.min_sj) and m_new > tau - 0.05 and tau < _TAU_MAX
                             and m_new > m + 1e-3 and not (deadline is not None and time.perf_counter() > deadline)):
@@ -840,7 +850,8 @@ class _Optimize:
                         t_keep = 0.95 * m_now
                         if self.min_sj is not None and m_now >= self.min_sj:
                             t_keep = max(t_keep, self.min_sj)  # a target reached stays reached
-                        V = opt.project_valid(prob, V, W, off, t=t_keep if t_keep > 0 else None)
+                        V = opt.project_valid(prob, V, W, off, t=t_keep if t_keep > 0 else None,
+                                              ratio_floor=RATIO_FLOOR)
             stage_s["quality"] = time.perf_counter() - ts
             deadline = deadline1
             # stage 2b: vertex by vertex, worst first, up from where the barrier and the projection left it
@@ -952,7 +963,7 @@ class _Optimize:
             "min_sj_target": self.min_sj, "min_sj_target_reached": reached,
             "untangled": bool(untangled), "untangle_outer": int(info1["outer"]),
             "untangle_iterations": int(info1["iterations"]), "smoothing_sweeps": int(info1.get("smoothing_sweeps", 0)),
-            "quality_rounds": int(info2.get("rounds", 0)),
+            "quality_rounds": int(info2.get("rounds", 0)), "quality_rounds_undone": int(info2.get("undone_rounds", 0)),
             "quality_iterations": int(info2.get("iterations", 0)), "fallback_used": used_fallback,
             "local_sweeps": int(self.local_info.get("sweeps", 0)), "local_steps": int(self.local_info.get("steps", 0)),
             "outer_iterations": len(self.history) - 1, "sos_steps": int(sum(h["sos_steps"] for h in self.history)),

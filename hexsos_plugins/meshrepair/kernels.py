@@ -560,6 +560,22 @@ def _edge_ratio2(V, conn, m):
 
 
 @njit(cache=True)
+def edge_ratios2(V, conn, out):
+    """Each hex's shortest edge over its longest, squared, into ``out`` (M,)."""
+    for m in range(conn.shape[0]):
+        out[m] = _edge_ratio2(V, conn, m)
+
+
+@njit(cache=True)
+def edge_ratios_above(V, conn, floor2):
+    """True when every hex m of ``conn`` has its shortest edge over its longest, squared, at least ``floor2[m]``."""
+    for m in range(conn.shape[0]):
+        if _edge_ratio2(V, conn, m) < floor2[m]:
+            return False
+    return True
+
+
+@njit(cache=True)
 def sweep(V, conn, G, factor, order, ptr, inc, loc, proj, step0, tau, max_steps, cell_sj, ref, A, width,
           ratio_floor):
     """One pass over the vertices ``order``: each moves by up to ``max_steps`` accepted steps (see the module

@@ -75,6 +75,13 @@ BETA = 0.01  # weight of the Bernstein log-barrier in stage 2 (measured on the b
 # code before) 0.781, 0.778, 0.718, 0.638, 0.864, 0.701, 0.652, 0.258, but with edges collapsed to 1e-5 of their
 # hex's longest. Penalizing long edges too moved twice as many vertices by more than 1% of the diagonal.
 EDGE_WEIGHT = 0.02
+# stage 2's rounds never take a hex's shortest / longest edge below the least of its own at their start, this and
+# half its own in the input (:meth:`Problem.hold_edge_ratios`): the edge term alone let them take
+# kitten_with_bifur_3's from 0.035 to 0.003-0.007. Medians over three starts (as above, with the driver undoing
+# rounds that lower the minimum) with 0.02: 0.766, 0.615, 0.558, 0.641, 0.864, 0.680, 0.718, 0.214 (without the
+# undoing 0.766, 0.710, 0.591, 0.605, 0.864, 0.676, 0.716, 0.209); with the vertex steps' 0.05: 0.776, 0.639,
+# 0.580, 0.458, 0.864, 0.356, 0.570, 0.214 (a hex held at 0.05 by the vertex steps blocks every joint step).
+ROUNDS_RATIO_FLOOR = 0.02
 # stage 2, a minimum stuck below RESTART_BELOW (patience rounds without gain): t back to RESTART_T x the minimum, up
 # to RESTARTS times. Measured on the bunny with its input perturbed by 1e-13 (rounding decides where stage 2 stalls):
 # one start stalled at min SJ 0.018 after 7 rounds; with restarts to 0.5 x the minimum 0.068, to 0.8 x 0.114 (at
@@ -221,6 +228,7 @@ class Problem:
                                 "Gq": _gm(G), "Gw3": np.ascontiguousarray(Gw), "Gq3": np.ascontiguousarray(G),
                                 "factor": factor, "hex": name == "hexahedron"})
         self.evaluations = 0
+        self.ratio_floor = 0.0  # stage 2's edge floor (:meth:`hold_edge_ratios`)
 
     # coordinates <-> variables
     def x0(self):
@@ -335,6 +343,9 @@ class Problem:
             if not _nb.barrier_cells(V, b["conn"], b["Gq3"], float(b["factor"]), float(t), b["s"], BETA, b["hex"],
                                      grad, ecell, mcell, okc, gcell):
                 return np.inf, None
+            fl2 = b.get("edge_floor2")
+            if fl2 is not None and not _nb.edge_ratios_above(V, b["conn"], fl2):
+                return np.inf, None
             total += float(ecell.sum())
             smin = min(smin, float(mcell.min()))
             if grad:
@@ -343,6 +354,24 @@ class Problem:
         total += self._edges(V, g)
         total += self._boundary(V, g, True)
         return total, (g[self.free].ravel() if grad else None)
+
+    def hold_edge_ratios(self, floor, ref=None):
+        """From here on stage 2's energy is inf where a hex's shortest / longest edge is below the least of its own
+        at the current coordinates, ``floor`` and (``ref`` (N, 3) given) half its own at ``ref`` (0: no bound)."""
+        self.ratio_floor = float(floor)
+        for b in self.blocks:
+            if not b["hex"]:
+                continue
+            if floor > 0:
+                r2 = np.empty(b["conn"].shape[0])
+                _nb.edge_ratios2(self.V, b["conn"], r2)
+                bound = np.full_like(r2, float(floor) ** 2)
+                if ref is not None:
+                    _nb.edge_ratios2(np.ascontiguousarray(ref, dtype=np.float64), b["conn"], bound)
+                    bound = np.minimum(0.25 * bound, float(floor) ** 2)
+                b["edge_floor2"] = np.minimum(r2, bound)
+            else:
+                b.pop("edge_floor2", None)
 
     def _edges(self, V, g):
         """Stage 2's edge term (:data:`EDGE_WEIGHT`, :func:`hexsos_plugins.meshrepair.kernels.hex_edge_term`) on
@@ -526,10 +555,14 @@ def untangle(prob: Problem, *, max_outer=60, max_iter=300, deadline=None, on_ste
 
 
 def improve(prob: Problem, *, target=None, max_rounds=40, max_iter=60, deadline=None, project=None,
-            on_step=None, patience=PATIENCE, min_gain=1e-3, restarts=None):
+            on_step=None, patience=PATIENCE, min_gain=1e-3, restarts=None, ratio_floor=0.0, ratio_ref=None):
     """Stage 2 on ``prob`` (its ``V`` is updated); needs a start where every SJ sample and hex coefficient is
     positive. ``project(V) -> V'`` (optional) moves the boundary back onto the input surface after each round;
     a projection that would leave the feasible set is shortened (halved up to 5 times) or dropped.
+    ``ratio_floor`` > 0: no iterate takes a hex's shortest / longest edge below the least of its own at the start,
+    ``ratio_floor`` and half its own at ``ratio_ref`` (the input; :meth:`Problem.hold_edge_ratios`). The edge term
+    alone let kitten_with_bifur_3's rounds take it from 0.035 to 0.003; without the half, hexes already below the
+    floor could not shorten their shortest edge at all, and cat_2's rounds stalled at 0.06.
 
     Returns a dict: ``min_sj`` (over the cells in the problem), ``rounds``, ``iterations``, ``reached``."""
     info = {"rounds": 0, "iterations": 0, "reached": False}
@@ -544,6 +577,7 @@ def improve(prob: Problem, *, target=None, max_rounds=40, max_iter=60, deadline=
     if target is not None and m >= target:
         info.update(min_sj=m, reached=True)
         return info
+    prob.hold_edge_ratios(ratio_floor, ratio_ref)
     t = 0.5 * m if m < 0.1 else m - 0.05
     restarts_left = RESTARTS if restarts is None else int(restarts)
     best = m
@@ -666,7 +700,7 @@ def _project_feasible(prob, x, t, project):
     moved = np.flatnonzero(np.any(W != V, axis=1) & prob.free_mask)
     if moved.size == 0:
         return x
-    Vn = project_valid(prob, V, W, moved, t)
+    Vn = project_valid(prob, V, W, moved, t, ratio_floor=prob.ratio_floor)
     if not np.isfinite(prob.barrier_energy(Vn[prob.free].ravel(), t, grad=False)[0]):
         return x
     if prob.slide is not None:  # the penalty's references (and normals) follow the projected positions
