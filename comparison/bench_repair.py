@@ -193,23 +193,32 @@ def starts(n, names=None):
               f"{' / '.join(f'{x:.4f}' for x in ratio)} | {100 * far:.2f}% |", flush=True)
 
 
+def _stage_seconds(st):
+    """'untangle / quality / vertex steps / certify' seconds of a repair's ``stage_seconds``."""
+    parts = " / ".join(f"{st.get(k, 0.0):.1f}" for k in ("untangle", "quality", "local", "certify"))
+    return parts + (f" (+ fallback {st['fallback']:.1f})" if "fallback" in st else "")
+
+
 def perturbed(names=None, amps=(1.5, 3.0)):
     """The default repair on the published meshes perturbed as HexOpt's stress tests: every interior vertex moved
     by up to ``amp`` edge lengths (:func:`comparison.stress.stress`, seed 0 for 1.5, 1 otherwise)."""
     from comparison.stress import stress
 
-    print("| mesh | moved by (edge lengths) | not valid before -> after | certified | SJ after min / p1 / mean | "
-          "shortest / longest edge of a hex, least | seconds |\n|---|---|---|---|---|---|---|")
-    for name, m in _published_meshes(names or ["bunny.vtk", "hexalab/rockarm.vtk", "hexalab/cat_2.mesh"]):
+    print("| mesh | hexes | moved by (edge lengths) | not valid before -> after | certified | SJ after min / p1 / mean | "
+          "shortest / longest edge of a hex, least | seconds: untangle / quality / vertex steps / certify / total |"
+          "\n|---|---|---|---|---|---|---|---|")
+    for name, m in _published_meshes(names):
         for amp in amps:
             P = stress(m.points, m.hexes, frac=1.0, amp=amp, seed=0 if amp == 1.5 else 1)
             t0 = time.perf_counter()
             r = repair(P, m.hexes)
             t = time.perf_counter() - t0
-            print(f"| {name} | {amp:g} | {r.stats['invalid_before'] + r.stats['undecided_before']:,} -> "
+            print(f"| {name} | {len(m.hexes):,} | {amp:g} | "
+                  f"{r.stats['invalid_before'] + r.stats['undecided_before']:,} -> "
                   f"{r.stats['invalid_after'] + r.stats['undecided_after']:,} | {'yes' if r.success else 'NO'} | "
                   f"{r.stats['min_sj_after']:.3f} / {r.stats['p1_sj_after']:.3f} / {r.stats['mean_sj_after']:.3f} | "
-                  f"{r.stats['edge_ratio_after']:.4f} | {t:.1f} |", flush=True)
+                  f"{r.stats['edge_ratio_after']:.4f} | {_stage_seconds(r.stats['stage_seconds'])} / {t:.1f} |",
+                  flush=True)
 
 
 def _fid(P, Q, H, cells):
@@ -292,10 +301,7 @@ def published(local=False, names=None):
           "seconds: untangle / quality / vertex steps / certify / total |")
     print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     for r in rows:
-        st = r["stage_seconds"]
-        parts = " / ".join(f"{st.get(k, 0.0):.1f}" for k in ("untangle", "quality", "local", "certify"))
-        if "fallback" in st:
-            parts += f" (+ fallback {st['fallback']:.1f})"
+        parts = _stage_seconds(r["stage_seconds"])
         (a0, n0), (a1, n1) = r["edge_ratio_before"], r["edge_ratio_after"]
         x = "n/a" if r["self_intersecting"] is None else "{:,} -> {:,}".format(*r["self_intersecting"])
         print(f"| {r['mesh']} | {r['hexes']:,} | {_fmt(r).rsplit(' | ', 1)[0]} | {r['moved']:,} of {r['points']:,} "
@@ -392,8 +398,8 @@ def main(argv=None):
                     help="--published: instead, the minimum scaled Jacobian of N starts perturbed by 1e-12 of the "
                          "diagonal (seeds 1..N) and their median: the minimum depends on rounding")
     ap.add_argument("--perturbed", action="store_true",
-                    help="--published: instead, the bunny, rockarm and cat_2 with every interior vertex moved by up "
-                         "to 1.5 and 3 edge lengths (HexOpt's stress tests)")
+                    help="--published: instead, the same meshes with every interior vertex moved by up to 1.5 and 3 "
+                         "edge lengths (HexOpt's stress tests)")
     args = ap.parse_args(argv)
     if args.published and args.perturbed:
         perturbed(args.mesh)
