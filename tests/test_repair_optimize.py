@@ -488,6 +488,7 @@ def test_rounds_that_lower_the_minimum_are_undone(monkeypatch):
     assert calls and min(calls) < r0.stats["min_sj_after"]
     assert r1.success and r1.stats["quality_rounds_undone"] == 10 and r0.stats["quality_rounds_undone"] == 0
     assert np.array_equal(r1.points, r0.points)
+    assert "the last 10 undone" in r1.summary() and "undone" not in r0.summary()
 
 
 def test_projection_holds_the_edge_floor():

@@ -111,7 +111,9 @@ def summary_optimize(res):
         + (f"; local: only the {s['local_region_vertices']} vertices within {s['rings']} rings of the "
            f"cells not proven valid could move" if s.get("local") else ""),
         f"stages            untangle {st.get('untangle', 0):.2f} s ({s['untangle_iterations']} iterations), quality "
-        f"{st.get('quality', 0):.2f} s ({s['quality_rounds']} rounds)"
+        f"{st.get('quality', 0):.2f} s ({s['quality_rounds']} rounds"
+        + (f", the last {s['quality_rounds_undone']} undone: they ended below where they began"
+           if s.get("quality_rounds_undone") else "") + ")"
         + (f", vertex steps {st['local']:.2f} s ({s.get('local_steps', 0)} steps)" if "local" in st else "")
         + f", certify {st.get('certify', 0):.2f} s"
         + (f", fallback (paper) {st['fallback']:.2f} s" if "fallback" in st else ""),
