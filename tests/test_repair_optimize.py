@@ -472,7 +472,7 @@ def test_rounds_that_lower_the_minimum_are_undone(monkeypatch):
 
     def worse(prob, **kw):
         V = prob.V.copy()
-        v = prob.free[np.argmax(np.linalg.norm(V[prob.free], axis=1) < 0.2)]  # a vertex near the centre
+        v = prob.free[np.argmin(np.linalg.norm(V[prob.free], axis=1))]  # an inner vertex, at 1/3 of the radius
         V[v] *= 1.5  # its hexes stay valid, their scaled Jacobian falls
         prob.V = V
         calls.append(prob.min_sj(V))
@@ -486,6 +486,7 @@ def test_rounds_that_lower_the_minimum_are_undone(monkeypatch):
     monkeypatch.setattr(opt, "improve", same)
     r0 = hs.repair(Q, H)
     assert calls and min(calls) < r0.stats["min_sj_after"]
+    assert min(calls) > 0  # the stand-in's mesh is valid: what it loses is quality
     assert r1.success and r1.stats["quality_rounds_undone"] == 10 and r0.stats["quality_rounds_undone"] == 0
     assert np.array_equal(r1.points, r0.points)
     assert "the last 10 undone" in r1.summary() and "undone" not in r0.summary()
