@@ -549,7 +549,7 @@ def test_published_rockarm_default_repair_beats_the_surface_cap():
 
 def test_published_dolphin_stress_test_untangles_against_smoothed_sizes():
     """Dolphin_2 (HexaLab), read in place, with every interior vertex moved by up to 3 edge lengths (HexOpt's
-    stress test; 4,714 of its 4,788 hexes inverted): the default repair certifies it in seconds. The untangling
+    stress test; 4,714 of its 4,788 hexes inverted): the default repair untangles and certifies it. The untangling
     measures each cell against its size after smoothing; against its input size (noise here) it ran its 60 s and
     left a hex inverted (measured)."""
     import os
@@ -564,5 +564,5 @@ def test_published_dolphin_stress_test_untangles_against_smoothed_sizes():
     r = hs.repair(P, mesh.hexes)
     assert r.stats["invalid_before"] > 4500 and r.stats["smoothing_sweeps"] > 0
     assert r.success and _certified(r.points, mesh.hexes) and r.stats["invalid_after"] == 0
-    assert r.stats["stage_seconds"]["untangle"] < 30 and r.stats["min_sj_after"] > 0.3
+    assert r.stats["untangled"] and not r.stats["fallback_used"] and r.stats["min_sj_after"] > 0.3
     assert r.stats["edge_ratio_after"] >= 0.02
