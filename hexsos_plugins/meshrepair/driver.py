@@ -824,7 +824,7 @@ class _Optimize:
                         # rounds that end below where they began are undone, and stage 2 ends: the barrier lets
                         # the minimum fall to its bound t below the start (kitten_with_bifur_3: 10 rounds took
                         # the vertex steps' 0.225 to 0.170, and its 30 s of rounds ended at 0.207)
-                        info2["undone_rounds"] = info2.get("undone_rounds", 0) + info.get("rounds", 0)
+                        info2["undone_rounds"] = info.get("rounds", 0)
                         break
                     V, sj = prob.V, sj_new
                     if m_new < m + 1e-3 and not info.get("reached"):
