@@ -194,8 +194,8 @@ def starts(n, names=None):
 
 
 def _stage_seconds(st):
-    """'untangle / quality / vertex steps / certify' seconds of a repair's ``stage_seconds``."""
-    parts = " / ".join(f"{st.get(k, 0.0):.1f}" for k in ("untangle", "quality", "local", "certify"))
+    """'untangle / quality / vertex steps / joint steps / certify' seconds of a repair's ``stage_seconds``."""
+    parts = " / ".join(f"{st.get(k, 0.0):.1f}" for k in ("untangle", "quality", "local", "joint", "certify"))
     return parts + (f" (+ fallback {st['fallback']:.1f})" if "fallback" in st else "")
 
 
@@ -205,7 +205,7 @@ def perturbed(names=None, amps=(1.5, 3.0)):
     from comparison.stress import stress
 
     print("| mesh | hexes | moved by (edge lengths) | not valid before -> after | certified | SJ after min / p1 / mean | "
-          "shortest / longest edge of a hex, least | seconds: untangle / quality / vertex steps / certify / total |"
+          "shortest / longest edge of a hex, least | seconds: untangle / quality / vertex steps / joint steps / certify / total |"
           "\n|---|---|---|---|---|---|---|---|")
     for name, m in _published_meshes(names):
         for amp in amps:
@@ -298,7 +298,7 @@ def published(local=False, names=None):
     print("\n| mesh | hexes | not valid before -> after | certified | SJ before min / p1 / mean | SJ after min / p1 / "
           "mean | Hausdorff (of diag) | max move (of diag) | moved vertices (> 1% of diag) | shortest / longest edge "
           "of a hex, least (hexes < 0.05): before -> after | self-intersecting boundary quads: before -> after | "
-          "seconds: untangle / quality / vertex steps / certify / total |")
+          "seconds: untangle / quality / vertex steps / joint steps / certify / total |")
     print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     for r in rows:
         parts = _stage_seconds(r["stage_seconds"])

@@ -78,6 +78,8 @@ _TAU_MAX = 0.75
 #: 34,880-hex mesh took 291 s for 54 rounds), and the vertex steps take what stage 2 leaves in a second or two
 QUALITY_SECONDS = 30.0
 LOCAL_SECONDS = 10.0
+#: Stage 2c's budget (joint steps; on the published meshes they stall in 1-4 s)
+JOINT_SECONDS = 10.0
 #: Seconds for stage 1 without a time limit: an untangling not done by then does not finish (kitten_with_bifur_3's
 #: barrier went on 456 s with more cells inverted than it started with); the paper's Algorithm 2 takes over
 UNTANGLE_SECONDS = 60.0
@@ -593,6 +595,25 @@ class _Optimize:
         self._step("local", W)
         return W
 
+    def _joint(self, V, movable, bm, others, deadline):
+        """Stage 2c (:func:`hexsos_plugins.meshrepair.jointsteps.joint_steps`) on the hexes, for at most
+        ``JOINT_SECONDS``: the vertices the last vertex steps could move (feature corners within the band), those of
+        other cells staying; boundary vertices move within the band (without one they stay)."""
+        from .jointsteps import joint_steps
+
+        mv = movable.copy()
+        mv[self.band_corners] = True
+        for _, conn in others:
+            mv[conn.ravel()] = False
+        end = time.perf_counter() + JOINT_SECONDS
+        W, info = joint_steps(V, self.H, mv, boundary=bm, deadline=end if deadline is None else min(deadline, end),
+                              target=self.min_sj)
+        self.local_info["joint_steps"] = info["steps"]
+        if not info["steps"]:
+            return V
+        self._step("joint", W)
+        return W
+
     def _into_band(self, V, bm, sizes):
         """The boundary vertices left outside the band (stage 2's penalty is soft; a projection refused because it
         would have lowered the minimum) moved into it, each as far as every cell stays at the minimum reached (and
@@ -866,6 +887,10 @@ class _Optimize:
                 ts = time.perf_counter()
                 V = self._local(V, movable, bm, others, deadline1, band=True)
                 stage_s["local"] = time.perf_counter() - ts
+                # stage 2c: where the worst hexes share vertices, they move together
+                ts = time.perf_counter()
+                V = self._joint(V, movable, bm, others, deadline1)
+                stage_s["joint"] = time.perf_counter() - ts
             if untangled and slide and self.surface_tolerance > 0:
                 V = self._into_band(V, bm, sizes)
         except _Stopped:
@@ -972,6 +997,7 @@ class _Optimize:
             "quality_rounds": int(info2.get("rounds", 0)), "quality_rounds_undone": int(info2.get("undone_rounds", 0)),
             "quality_iterations": int(info2.get("iterations", 0)), "fallback_used": used_fallback,
             "local_sweeps": int(self.local_info.get("sweeps", 0)), "local_steps": int(self.local_info.get("steps", 0)),
+            "joint_steps": int(self.local_info.get("joint_steps", 0)),
             "outer_iterations": len(self.history) - 1, "sos_steps": int(sum(h["sos_steps"] for h in self.history)),
             "projection_steps": 0, "sdp_solves": 0,
             "max_displacement": float(norm.max()) if N else 0.0,

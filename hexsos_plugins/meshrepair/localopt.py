@@ -21,7 +21,7 @@ import numpy as np
 from ..cells.hexahedron import EDGES
 from ..cells.quality import SAMPLES
 
-__all__ = ["local_sweeps", "local_untangle", "BAND_BELOW"]
+__all__ = ["local_sweeps", "local_untangle", "vertex_freedoms", "band_limits", "BAND_BELOW", "RATIO_FLOOR"]
 
 #: The band around the boundary (:attr:`hexsos_plugins.meshrepair.boundary.BoundaryModel.tolerance`) is for the
 #: hexes the surface holds down: only vertices of hexes below this scaled Jacobian leave the surface (measured on a
@@ -58,7 +58,12 @@ def _edge_length(V, H, N):
     return s / np.maximum(c, 1)
 
 
-def _setup(V, H, movable, boundary, step):
+def vertex_freedoms(V, H, movable, boundary, step):
+    """Each vertex's freedom for the vertex steps: (proj (N, 3, 3), ptr, inc, loc, step0 (N,)). ``proj`` the
+    orthogonal projector onto the directions a vertex may move in (the identity inside, the input tangent plane on
+    the surface, the tangent on a feature curve, 0 at corners and where not ``movable``); ``ptr``/``inc``/``loc``
+    the hexes around each vertex (CSR) and its node index in each; ``step0`` ``step`` times the vertex's mean
+    edge length."""
     N = V.shape[0]
     proj = np.zeros((N, 3, 3))
     proj[movable] = np.eye(3)
@@ -73,7 +78,7 @@ def _setup(V, H, movable, boundary, step):
     return proj, ptr, inc, loc, step * _edge_length(V, H, N)
 
 
-def _band(V, movable, boundary, proj, allowed):
+def band_limits(V, movable, boundary, proj, allowed):
     """The band of each boundary vertex (:attr:`hexsos_plugins.meshrepair.boundary.BoundaryModel.tolerance`) for
     :func:`hexsos_plugins.meshrepair.kernels.sweep`: (ref (N, 3), A (N, 3, 3), width (N,)), width inf where there is
     none. A movable boundary vertex with a band moves in any direction (``proj`` set to the identity), its component
@@ -122,7 +127,7 @@ def local_untangle(V, H, sizes, movable, *, boundary=None, deadline=None, band=0
     H = np.ascontiguousarray(H, dtype=np.int64)
     N = V.shape[0]
     inv3 = 1.0 / np.asarray(sizes, dtype=np.float64) ** 3
-    proj, ptr, inc, loc, step0 = _setup(V, H, movable, boundary, step)
+    proj, ptr, inc, loc, step0 = vertex_freedoms(V, H, movable, boundary, step)
     can = np.abs(proj).sum(axis=(1, 2)) > 0
     q = lo.bernstein_minima(V, H, inv3)
     info = {"sweeps": 0, "steps": 0, "bad_before": int((q <= 0).sum())}
@@ -170,11 +175,11 @@ def local_sweeps(V, H, movable, *, boundary=None, deadline=None, band=0.1, tau=0
     N = V.shape[0]
     G, factor = SAMPLES["hexahedron"]
     G = np.ascontiguousarray(G)
-    proj, ptr, inc, loc, step0 = _setup(V, H, movable, boundary, step)
+    proj, ptr, inc, loc, step0 = vertex_freedoms(V, H, movable, boundary, step)
     cell_sj = lo.cell_minima(V, H, G, float(factor))
     allowed = np.zeros(N, dtype=bool)
     allowed[H[cell_sj < band_below].ravel()] = True
-    ref, A, width = _band(V, movable, boundary, proj, allowed)
+    ref, A, width = band_limits(V, movable, boundary, proj, allowed)
     info = {"sweeps": 0, "steps": 0, "min_before": float(cell_sj.min()) if cell_sj.size else np.inf}
     can = np.abs(proj).sum(axis=(1, 2)) > 0
     best, stall = info["min_before"], 0

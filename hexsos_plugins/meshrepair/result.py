@@ -115,6 +115,7 @@ def summary_optimize(res):
         + (f", the last {s['quality_rounds_undone']} undone: they ended below where they began"
            if s.get("quality_rounds_undone") else "") + ")"
         + (f", vertex steps {st['local']:.2f} s ({s.get('local_steps', 0)} steps)" if "local" in st else "")
+        + (f", joint steps {st['joint']:.2f} s ({s.get('joint_steps', 0)} kept)" if "joint" in st else "")
         + f", certify {st.get('certify', 0):.2f} s"
         + (f", fallback (paper) {st['fallback']:.2f} s" if "fallback" in st else ""),
         f"time              {s['seconds']:.3f} s",
