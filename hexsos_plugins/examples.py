@@ -15,6 +15,7 @@ from .io.mesh import hexes_to_mesh  # noqa: F401 (re-exported: examples build me
 
 __all__ = [
     "gmsh_model",
+    "cubed_ball",
     "unit_cube",
     "inside_invalid_hex",
     "twisted_hex",
@@ -91,6 +92,16 @@ def structured_grid(nx: int, ny: int | None = None, nz: int | None = None, *, si
     i, j, k = i.ravel(), j.ravel(), k.ravel()
     H = np.stack([idx[i + a, j + b, k + c] for a, b, c in CORNERS], axis=1)
     return P, H.astype(np.int64)
+
+
+def cubed_ball(n: int = 2):
+    """A cube's n^3 grid pushed radially onto the unit ball: points (N, 3), hexes (M, 8). Valid, but the hexes at
+    the cube's corners have three faces on a smooth sphere, where no quad can be square (n = 2: min scaled
+    Jacobian 0.67)."""
+    P, H = structured_grid(n, n, n, size=(2.0, 2.0, 2.0))
+    P = P - 1.0
+    r2, ri = np.linalg.norm(P, axis=1), np.abs(P).max(axis=1)
+    return np.where(r2[:, None] > 0, P * (ri / np.maximum(r2, 1e-300))[:, None], P), H
 
 
 def _gmsh():

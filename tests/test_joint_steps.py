@@ -11,22 +11,13 @@ import pytest
 
 import hexsos_plugins as hs
 from hexsos_plugins.cells.quality import hex_edge_ratio, sample_scaled_jacobians
-from hexsos_plugins.examples import structured_grid
+from hexsos_plugins.examples import cubed_ball, structured_grid
 from hexsos_plugins.meshrepair import SURFACE_TOLERANCE, localopt
 from hexsos_plugins.meshrepair.boundary import boundary_model
 from hexsos_plugins.meshrepair.jointsteps import RATIO_SLACK, bernstein_gradients, joint_steps, sample_gradients
 from hexsos_plugins.meshrepair.optimize import bernstein_coefficients
 
 SHARED = os.path.join(os.path.dirname(__file__), "..", "..", "shared", "data")
-
-
-def _cubed_ball(n):
-    """A cube's n^3 grid pushed radially onto the unit ball: valid, its corner hexes with three faces on the
-    sphere."""
-    P, H = structured_grid(n, n, n, size=(2.0, 2.0, 2.0))
-    P = P - 1.0
-    r2, ri = np.linalg.norm(P, axis=1), np.abs(P).max(axis=1)
-    return np.where(r2[:, None] > 0, P * (ri / np.maximum(r2, 1e-300))[:, None], P), H
 
 
 def _certified(P, H):
@@ -61,7 +52,7 @@ def test_joint_steps_lift_where_the_vertex_steps_stop():
     within the band (or no farther off than it was), no hex's edge ratio below its floor. Without a boundary model
     the same steps take the boundary vertices off the sphere by more than twice the band: the band is what holds
     them."""
-    Q, H = _cubed_ball(3)
+    Q, H = cubed_ball(3)
     bm = boundary_model(Q, [("hexahedron", H)], tolerance=SURFACE_TOLERANCE)
     mv = np.ones(len(Q), dtype=bool)
     W = Q

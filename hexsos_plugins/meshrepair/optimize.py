@@ -555,7 +555,8 @@ def untangle(prob: Problem, *, max_outer=60, max_iter=300, deadline=None, on_ste
 
 
 def improve(prob: Problem, *, target=None, max_rounds=40, max_iter=60, deadline=None, project=None,
-            on_step=None, patience=PATIENCE, min_gain=1e-3, restarts=None, ratio_floor=0.0, ratio_ref=None):
+            on_step=None, patience=PATIENCE, min_gain=1e-3, restarts=None, ratio_floor=0.0, ratio_ref=None,
+            recover_seconds=None):
     """Stage 2 on ``prob`` (its ``V`` is updated); needs a start where every SJ sample and hex coefficient is
     positive. ``project(V) -> V'`` (optional) moves the boundary back onto the input surface after each round;
     a projection that would leave the feasible set is shortened (halved up to 5 times) or dropped.
@@ -564,6 +565,8 @@ def improve(prob: Problem, *, target=None, max_rounds=40, max_iter=60, deadline=
     alone let kitten_with_bifur_3's rounds take it from 0.035 to 0.003; without the half, hexes already below the
     floor could not shorten their shortest edge at all, and cat_2's rounds stalled at 0.06.
 
+    ``recover_seconds``: rounds whose minimum is still below the start after this many seconds stop (with
+    ``unrecovered`` set).
     Returns a dict: ``min_sj`` (over the cells in the problem), ``rounds``, ``iterations``, ``reached``."""
     info = {"rounds": 0, "iterations": 0, "reached": False}
     if prob.free.size == 0 or not prob.blocks:
@@ -578,6 +581,7 @@ def improve(prob: Problem, *, target=None, max_rounds=40, max_iter=60, deadline=
         info.update(min_sj=m, reached=True)
         return info
     prob.hold_edge_ratios(ratio_floor, ratio_ref)
+    m_start, t_start = m, time.perf_counter()
     t = 0.5 * m if m < 0.1 else m - 0.05
     restarts_left = RESTARTS if restarts is None else int(restarts)
     best = m
@@ -620,6 +624,9 @@ def improve(prob: Problem, *, target=None, max_rounds=40, max_iter=60, deadline=
             # 1e-13, seed 0: stopping each solve at 0.2 and projecting settled at 0.11; the full solves reach 0.2)
             early = False
         hist.append(m)
+        if recover_seconds is not None and m < m_start and time.perf_counter() - t_start > recover_seconds:
+            info["unrecovered"] = True
+            break
         # a minimum above RESTART_BELOW creeping up (rockarm: 0.518 -> 0.523 over five rounds of 0.4-0.7 s each)
         # is stalled too:
         # less than CREEP per round over the last ``patience`` rounds; the vertex steps that follow stage 2
