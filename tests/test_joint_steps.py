@@ -101,3 +101,18 @@ def test_published_cat_2_joint_steps_lift_the_worst_cluster():
     j = stages.index("joint")
     assert r.history[j - 1]["min_sj"] < 0.70 and r.history[j]["min_sj"] > 0.74, r.history[j - 1:j + 1]
     assert r.stats["joint_steps"] > 0 and r.stats["min_sj_after"] > 0.74
+
+
+@pytest.mark.skipif(not os.path.exists(os.path.join(SHARED, "hexalab", "kitten_with_bifur_3.mesh")),
+                    reason="../shared/data/hexalab/kitten_with_bifur_3.mesh absent")
+def test_published_kitten_joint_steps_pass_hexes_with_a_coefficient_near_zero():
+    """kitten_with_bifur_3 (published, 34,880 hexes): next to its worst hexes sit hexes with a Bernstein coefficient
+    of det J near 0 (5e-6 of their largest). The program holds it to first order; a step of the trust region's
+    size took it below 0 at second order, so every step was refused and the joint steps stopped at 0.277. Their
+    vertices now take steps of at most 0.3 sqrt(r) of their edge length, and the steps go on: past 0.285."""
+    m = hs.read(os.path.join(SHARED, "hexalab", "kitten_with_bifur_3.mesh"))
+    r = hs.repair(m.points, m.hexes)
+    stages = [h["stage"] for h in r.history]
+    assert r.success and "joint" in stages, stages
+    j = stages.index("joint")
+    assert r.history[j - 1]["min_sj"] < 0.23 and r.history[j]["min_sj"] > 0.285, r.history[j - 1:j + 1]

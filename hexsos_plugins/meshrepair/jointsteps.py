@@ -46,6 +46,8 @@ BERNSTEIN_LOW = 0.3
 #: start and :data:`~hexsos_plugins.meshrepair.localopt.RATIO_FLOOR`: the program holds the floor at first order
 #: only, and a hex at its floor would block every step that moves it (Dolphin_2: 31 hexes of the input below 0.05)
 RATIO_SLACK = 0.005
+#: The step's bound near a Bernstein coefficient close to 0 (below)
+NEAR_ZERO_STEP = 0.3
 #: The solver: HiGHS's interior point method (its dual simplex, on a 4^3 grid near 0.996, hit the time limit on 4
 #: of 20 programs, the interior point method on 1; on the published meshes both solve each in under 0.07 s and end
 #: within 0.005 of each other). A program taking longer than ``LP_SECONDS`` is given up (the trust region halves).
@@ -216,7 +218,15 @@ def joint_steps(V, H, movable, *, boundary=None, deadline=None, target=None, ban
         # scaled for the simplex: each move in units of its trust region (bounds +-1, or 0 where the vertex has no
         # such direction), t as its gain over m (HiGHS's dual simplex cycled for seconds on the unscaled program of
         # a 4^3 grid near 0.996); entries below 1e-12 of the largest are rounding noise of zero gradients
-        lim = np.append((delta * size[verts][:, None]).repeat(3, axis=1).ravel(), 1.0)
+        # the vertices of a hex with a coefficient near 0 (r of its largest) move by at most NEAR_ZERO_STEP sqrt(r)
+        # of their edge length: the program holds that coefficient to first order only, and the second order, of
+        # the step squared, took it below 0 (kitten_with_bifur_3: r 5e-6, every step refused down to 1e-4 of the
+        # edge length; the steps stopped at 0.277, with this at 0.296-0.331)
+        r = np.maximum(b.min(axis=1), 0.0) / scale
+        rv = np.ones(N)
+        np.minimum.at(rv, Hx.ravel(), np.repeat(r, 8))
+        dv = np.minimum(delta, NEAR_ZERO_STEP * np.sqrt(rv[verts]))
+        lim = np.append((dv * size[verts])[:, None].repeat(3, axis=1).ravel(), 1.0)
         Aub = coo_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
                          shape=(n_rows, nv + 1)).tocsr() @ diags(lim)
         Aub.data[np.abs(Aub.data) < 1e-12 * np.abs(Aub.data).max()] = 0.0
