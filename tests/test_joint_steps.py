@@ -101,6 +101,7 @@ def test_published_cat_2_joint_steps_lift_the_worst_cluster():
     j = stages.index("joint")
     assert r.history[j - 1]["min_sj"] < 0.70 and r.history[j]["min_sj"] > 0.74, r.history[j - 1:j + 1]
     assert r.stats["joint_steps"] > 0 and r.stats["min_sj_after"] > 0.74
+    assert f"joint steps {r.stats['stage_seconds']['joint']:.2f} s ({r.stats['joint_steps']} kept)" in r.summary()
 
 
 @pytest.mark.skipif(not os.path.exists(os.path.join(SHARED, "hexalab", "kitten_with_bifur_3.mesh")),

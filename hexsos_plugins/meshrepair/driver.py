@@ -78,7 +78,8 @@ _TAU_MAX = 0.75
 #: 34,880-hex mesh took 291 s for 54 rounds), and the vertex steps take what stage 2 leaves in a second or two
 QUALITY_SECONDS = 30.0
 LOCAL_SECONDS = 10.0
-#: Stage 2c's budget (joint steps; on the published meshes they stall in 1-4 s)
+#: Stage 2c's budget (joint steps; on the published meshes they end in 1-10 s: Dolphin_2 at this budget, and four
+#: of the sixteen perturbed ones)
 JOINT_SECONDS = 10.0
 #: Seconds for stage 1 without a time limit: an untangling not done by then does not finish (kitten_with_bifur_3's
 #: barrier went on 456 s with more cells inverted than it started with); the paper's Algorithm 2 takes over
@@ -88,7 +89,8 @@ PRE_STEPS = True
 CHUNK_ROUNDS = 10
 #: A chunk of stage 2's rounds still below its start after this many seconds stops (and is undone):
 #: kitten_with_bifur_3 perturbed by 1.5 edge lengths spent the quality stage's 30 s in rounds of 5 s below their
-#: start (the repair 57 s, now 42 s); rounds of a fraction of a second (the other published meshes) recover first
+#: start (the repair 57 s, that stage now 15 s); rounds of a fraction of a second (the other published meshes)
+#: recover first
 RECOVER_SECONDS = 10.0
 
 

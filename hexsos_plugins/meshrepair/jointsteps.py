@@ -9,9 +9,10 @@ at least ``t``; within a trust region (a fraction of each vertex's mean edge len
 (inside any direction; boundary vertices within their band, as the vertex steps' last pass, the others where they
 are); with each hex's shortest / longest edge, linearized, above the lesser of its own and
 :data:`~hexsos_plugins.meshrepair.localopt.RATIO_FLOOR`, and its low Bernstein coefficients of det J, linearized,
-above half their value. The step is kept only where the mesh's least sample rises, every Bernstein coefficient of
-every hex stays positive, no hex's edge ratio falls below its floor and every banded vertex stays in its band
-(exactly, not linearized); otherwise the trust region halves. So the steps end where they started or higher,
+above half their value (the vertices of a hex with a coefficient near 0 take shorter steps:
+:data:`NEAR_ZERO_STEP`). The step is kept only where the mesh's least sample rises, every Bernstein coefficient of
+every hex stays positive, no hex's edge ratio falls below its floor (less :data:`RATIO_SLACK`) and every banded
+vertex stays in its band (exactly, not linearized); otherwise the trust region halves. So the steps end where they started or higher,
 valid, with no edge collapsed; the certificate is still the kernel's.
 """
 
@@ -29,8 +30,8 @@ from .optimize import bernstein_matrix, hex_bernstein_samples
 __all__ = ["joint_steps", "sample_gradients", "bernstein_gradients", "SPAN", "MAX_HEXES", "RATIO_SLACK"]
 
 #: The hexes whose vertices move: within this of the minimum, the :data:`MAX_HEXES` lowest at most (measured on
-#: the published meshes after the vertex steps, 10 s each: with 50 they end at 0.747-0.843 in 1-4 s; with 100 and
-#: 300 no higher but in 2-10 s)
+#: the published meshes after the vertex steps, 10 s each, with a box for the band: 50 reached as high as 100 and
+#: 300 (within 0.01, higher on four of eight) in 1-4 s where they took 2-10 s)
 SPAN = 0.05
 MAX_HEXES = 50
 #: The trust region: each vertex moves by at most this fraction of its mean edge length per coordinate of its
@@ -50,7 +51,7 @@ RATIO_SLACK = 0.005
 NEAR_ZERO_STEP = 0.3
 #: The solver: HiGHS's interior point method (its dual simplex, on a 4^3 grid near 0.996, hit the time limit on 4
 #: of 20 programs, the interior point method on 1; on the published meshes both solve each in under 0.07 s and end
-#: within 0.005 of each other). A program taking longer than ``LP_SECONDS`` is given up (the trust region halves).
+#: within 0.005 of each other, but on kitten_with_bifur_3: 0.331 with the simplex, 0.296 with this, one run each). A program taking longer than ``LP_SECONDS`` is given up (the trust region halves).
 LP_METHOD = "highs-ipm"
 LP_SECONDS = 0.5
 #: The steps end when ``PATIENCE`` tries in a row raise the minimum by less than ``MIN_GAIN`` in all.
