@@ -89,17 +89,24 @@ def test_joint_steps_move_only_what_may_move():
     assert info["min_before"] + 0.01 <= tinfo["min_after"] < info["min_after"]
 
 
+def _joint_stage(name):
+    """The default repair of a published mesh (``../shared/data/hexalab/NAME``) and the minimum scaled Jacobian
+    before and after its joint steps."""
+    m = hs.read(os.path.join(SHARED, "hexalab", name))
+    r = hs.repair(m.points, m.hexes)
+    stages = [h["stage"] for h in r.history]
+    assert r.success and "joint" in stages, stages
+    j = stages.index("joint")
+    return r, r.history[j - 1]["min_sj"], r.history[j]["min_sj"]
+
+
 @pytest.mark.skipif(not os.path.exists(os.path.join(SHARED, "hexalab", "cat_2.mesh")),
                     reason="../shared/data/hexalab/cat_2.mesh absent")
 def test_published_cat_2_joint_steps_lift_the_worst_cluster():
     """cat_2 (published): after the vertex steps its worst hexes, a cluster of eight around a feature corner, sit at
     0.66-0.68; the repair's joint steps take the certified minimum past 0.74."""
-    m = hs.read(os.path.join(SHARED, "hexalab", "cat_2.mesh"))
-    r = hs.repair(m.points, m.hexes)
-    stages = [h["stage"] for h in r.history]
-    assert r.success and "joint" in stages, stages
-    j = stages.index("joint")
-    assert r.history[j - 1]["min_sj"] < 0.70 and r.history[j]["min_sj"] > 0.74, r.history[j - 1:j + 1]
+    r, before, after = _joint_stage("cat_2.mesh")
+    assert before < 0.70 and after > 0.74, (before, after)
     assert r.stats["joint_steps"] > 0 and r.stats["min_sj_after"] > 0.74
     assert f"joint steps {r.stats['stage_seconds']['joint']:.2f} s ({r.stats['joint_steps']} kept)" in r.summary()
 
@@ -111,9 +118,5 @@ def test_published_kitten_joint_steps_pass_hexes_with_a_coefficient_near_zero():
     of det J near 0 (5e-6 of their largest). The program holds it to first order; a step of the trust region's
     size took it below 0 at second order, so every step was refused and the joint steps stopped at 0.277. Their
     vertices now take steps of at most 0.3 sqrt(r) of their edge length, and the steps go on: past 0.285."""
-    m = hs.read(os.path.join(SHARED, "hexalab", "kitten_with_bifur_3.mesh"))
-    r = hs.repair(m.points, m.hexes)
-    stages = [h["stage"] for h in r.history]
-    assert r.success and "joint" in stages, stages
-    j = stages.index("joint")
-    assert r.history[j - 1]["min_sj"] < 0.23 and r.history[j]["min_sj"] > 0.285, r.history[j - 1:j + 1]
+    _, before, after = _joint_stage("kitten_with_bifur_3.mesh")
+    assert before < 0.23 and after > 0.285, (before, after)

@@ -559,11 +559,7 @@ class _Optimize:
         from . import optimize as opt
         from .localopt import BAND_BELOW, RATIO_FLOOR, local_sweeps
 
-        mv = movable.copy()
-        if band:
-            mv[self.band_corners] = True
-        for _, conn in others:
-            mv[conn.ravel()] = False
+        mv = self._hex_movable(movable, others, band)
         slide = self.boundary == "slide"
         N = V.shape[0]
         sizes = [cell_size(self.P0, name, conn) for name, conn in self.blocks]
@@ -601,16 +597,23 @@ class _Optimize:
         self._step("local", W)
         return W
 
+    def _hex_movable(self, movable, others, band):
+        """The vertices stages 2b and 2c move: ``movable`` and (``band``) the feature corners within the band, but
+        not those of other cells (the steps move hexes only)."""
+        mv = movable.copy()
+        if band:
+            mv[self.band_corners] = True
+        for _, conn in others:
+            mv[conn.ravel()] = False
+        return mv
+
     def _joint(self, V, movable, bm, others, deadline):
         """Stage 2c (:func:`hexsos_plugins.meshrepair.jointsteps.joint_steps`) on the hexes, for at most
         ``JOINT_SECONDS``: the vertices the last vertex steps could move (feature corners within the band), those of
         other cells staying; boundary vertices move within the band (without one they stay)."""
         from .jointsteps import joint_steps
 
-        mv = movable.copy()
-        mv[self.band_corners] = True
-        for _, conn in others:
-            mv[conn.ravel()] = False
+        mv = self._hex_movable(movable, others, True)
         end = time.perf_counter() + JOINT_SECONDS
         W, info = joint_steps(V, self.H, mv, boundary=bm, deadline=end if deadline is None else min(deadline, end),
                               target=self.min_sj)

@@ -25,7 +25,7 @@ import numpy as np
 from ..cells.hexahedron import EDGES
 from ..cells.quality import SAMPLES, hex_edge_ratio
 from .localopt import BAND_BELOW, RATIO_FLOOR, band_limits, vertex_freedoms
-from .optimize import bernstein_matrix, hex_bernstein_samples
+from .optimize import bernstein_matrix, cof3, hex_bernstein_samples
 
 __all__ = ["joint_steps", "sample_gradients", "bernstein_gradients", "SPAN", "MAX_HEXES", "RATIO_SLACK"]
 
@@ -64,9 +64,8 @@ _E = np.asarray(EDGES)
 
 
 def _cofactors(E):
-    """d det / dE of matrices E (..., 3, 3) (columns the edges): (..., 3, 3)."""
-    return np.stack([np.cross(E[..., :, 1], E[..., :, 2]), np.cross(E[..., :, 2], E[..., :, 0]),
-                     np.cross(E[..., :, 0], E[..., :, 1])], axis=-1)
+    """d det / dE of matrices E (..., 3, 3): :func:`hexsos_plugins.meshrepair.optimize.cof3` on the last two axes."""
+    return np.moveaxis(cof3(np.moveaxis(E, (-2, -1), (0, 1))), (0, 1), (-2, -1))
 
 
 def sample_gradients(X):
@@ -104,8 +103,9 @@ def joint_steps(V, H, movable, *, boundary=None, deadline=None, target=None, ban
     """Raise the minimum scaled Jacobian of hexes H at V by joint moves of the vertices of the worst hexes (module
     docstring). ``movable`` (N,) bool; ``boundary``: a :class:`hexsos_plugins.meshrepair.boundary.BoundaryModel`
     with a band (its vertices of hexes below ``band_below`` or within twice ``span`` of the minimum at the start
-    move within it, the other boundary vertices stay) or None (no constraint but ``movable``); ``target``: stop once the minimum reaches it. Returns
-    (V', info) with ``steps`` (kept), ``tries``, ``min_before``, ``min_after``."""
+    move within it, the other boundary vertices stay) or None (no constraint but ``movable``); ``target``: stop
+    once the minimum reaches it. Returns (V', info) with ``steps`` (kept), ``tries``, ``min_before``,
+    ``min_after``."""
     from scipy.optimize import linprog
     from scipy.sparse import coo_matrix, diags
 
@@ -216,17 +216,17 @@ def joint_steps(V, H, movable, *, boundary=None, deadline=None, target=None, ban
             rows.append(r), cols.append(c), vals.append(v)
             rhs.append(np.maximum(width[out] - off[out], 0.0))
             n_rows += out.size
-        # scaled for the simplex: each move in units of its trust region (bounds +-1, or 0 where the vertex has no
-        # such direction), t as its gain over m (HiGHS's dual simplex cycled for seconds on the unscaled program of
-        # a 4^3 grid near 0.996); entries below 1e-12 of the largest are rounding noise of zero gradients
         # the vertices of a hex with a coefficient near 0 (r of its largest) move by at most NEAR_ZERO_STEP sqrt(r)
         # of their edge length: the program holds that coefficient to first order only, and the second order, of
         # the step squared, took it below 0 (kitten_with_bifur_3: r 5e-6, every step refused down to 1e-4 of the
         # edge length; the steps stopped at 0.277, with this at 0.296-0.331)
-        r = np.maximum(b.min(axis=1), 0.0) / scale
+        rel = np.maximum(b.min(axis=1), 0.0) / scale
         rv = np.ones(N)
-        np.minimum.at(rv, Hx.ravel(), np.repeat(r, 8))
+        np.minimum.at(rv, Hx.ravel(), np.repeat(rel, 8))
         dv = np.minimum(delta, NEAR_ZERO_STEP * np.sqrt(rv[verts]))
+        # scaled for the solver: each move in units of its trust region (bounds +-1, or 0 where the vertex has no
+        # such direction), t as its gain over m (HiGHS's dual simplex cycled for seconds on the unscaled program of
+        # a 4^3 grid near 0.996); entries below 1e-12 of the largest are rounding noise of zero gradients
         lim = np.append((dv * size[verts])[:, None].repeat(3, axis=1).ravel(), 1.0)
         Aub = coo_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
                          shape=(n_rows, nv + 1)).tocsr() @ diags(lim)
@@ -251,10 +251,10 @@ def joint_steps(V, H, movable, *, boundary=None, deadline=None, target=None, ban
                 C = boundary.closest(W, bvs)[bvs]
                 d = W[bvs] - C
                 dn = np.sqrt((d * d).sum(axis=1))
-                lim = np.maximum(width[bvs], off[bvs])
-                over = dn > lim
-                W[bvs[over]] = C[over] + (lim[over] / dn[over])[:, None] * d[over]
-                dn[over] = lim[over]
+                cap = np.maximum(width[bvs], off[bvs])
+                over = dn > cap
+                W[bvs[over]] = C[over] + (cap[over] / dn[over])[:, None] * d[over]
+                dn[over] = cap[over]
             new = lo.cell_minima(W, np.ascontiguousarray(Hx), G, float(factor))
             kept = bool(new.min() > m) and bool(np.all(hex_edge_ratio(W, Hx) >= floor_kept[hx]))
             if kept:
