@@ -118,8 +118,5 @@ def test_published_kitten_joint_steps_pass_hexes_with_a_coefficient_near_zero():
     of det J near 0 (5e-6 of their largest). The program holds it to first order; a step of the trust region's
     size took it below 0 at second order, so every step was refused and the joint steps stopped at 0.277. Their
     vertices now take steps of at most 0.3 sqrt(r) of their edge length, and the steps go on: past 0.285."""
-    r, before, after = _joint_stage("kitten_with_bifur_3.mesh")
+    _, before, after = _joint_stage("kitten_with_bifur_3.mesh")
     assert before < 0.23 and after > 0.285, (before, after)
-    # before them, stage 2's rounds fell from the vertex steps' 0.225 to their bound 0.175 and sat there: two
-    # rounds pinned at it end them (optimize.PINNED), where five of 2 s each ran until RECOVER_SECONDS
-    assert r.stats["quality_rounds_undone"] == 2, r.stats["quality_rounds_undone"]

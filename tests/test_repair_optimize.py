@@ -488,8 +488,7 @@ def test_rounds_below_their_start_for_too_long_give_up():
     (the driver then undoes them: kitten_with_bifur_3's rounds, 5 s each on 34,880 hexes, sat below their start
     for the whole 30 s budget). On a 3^3 cubed ball after the vertex steps the first round falls (0.69 -> 0.65) and
     the next ones recover past the start: with 0 s the rounds stop at the first, unrecovered; without the rule, or
-    with a budget they do not reach, they run on, bit for bit alike, and end above the start (the rule of rounds
-    pinned at their bound, active with any budget, leaves rounds that recover alone)."""
+    with a budget they do not reach, they run on, bit for bit alike, and end above the start."""
     from hexsos_plugins.meshrepair import localopt
     from hexsos_plugins.meshrepair.boundary import boundary_model
     from hexsos_plugins.meshrepair.driver import cell_size

@@ -95,12 +95,6 @@ T_STEP = 0.9  # stage 2: t moves this fraction of the way to the current minimum
 # a few rounds and rises again later), with 6 at 0.335 / 0.351 / 0.343
 PATIENCE = 6
 CREEP = 2e-3
-# stage 2 with ``recover_seconds``: two rounds running whose minimum ends below the start and within PINNED of the
-# way from their bound t up to the start stop as unrecovered. Measured on the eight published meshes and their
-# sixteen stress tests: rounds that went on to pass their start ended their second round 0.009-0.04 above their
-# bound (of a 0.05 gap); those that never did, 0.0001-0.001 above it (kitten_with_bifur_3: five rounds of 2 s at
-# 0.176-0.183 under a start of 0.225, then undone; warrior_graded perturbed, five of 2.5 s)
-PINNED = 0.05
 
 # --- small dense helpers ----------------------------------------------------------------------------------
 
@@ -572,8 +566,7 @@ def improve(prob: Problem, *, target=None, max_rounds=40, max_iter=60, deadline=
     floor could not shorten their shortest edge at all, and cat_2's rounds stalled at 0.06.
 
     ``recover_seconds``: rounds whose minimum is still below the start after this many seconds stop (with
-    ``unrecovered`` set), as do two rounds running that end below the start and pinned at their bound
-    (:data:`PINNED`).
+    ``unrecovered`` set).
     Returns a dict: ``min_sj`` (over the cells in the problem), ``rounds``, ``iterations``, ``reached``."""
     info = {"rounds": 0, "iterations": 0, "reached": False}
     if prob.free.size == 0 or not prob.blocks:
@@ -597,7 +590,6 @@ def improve(prob: Problem, *, target=None, max_rounds=40, max_iter=60, deadline=
     if project is not None:
         x = _project_feasible(prob, x, t, project)
     hist = [m]
-    pinned = 0  # rounds running that ended below the start and at their bound t
     early = target is not None  # stop a solve as soon as the target is reached (until that proves premature)
     for rnd in range(1, max_rounds + 1):
         if rnd > 1 and deadline is not None and time.perf_counter() > deadline:
@@ -632,9 +624,7 @@ def improve(prob: Problem, *, target=None, max_rounds=40, max_iter=60, deadline=
             # 1e-13, seed 0: stopping each solve at 0.2 and projecting settled at 0.11; the full solves reach 0.2)
             early = False
         hist.append(m)
-        pinned = pinned + 1 if m < m_start and m - t < PINNED * (m_start - t) else 0
-        if recover_seconds is not None and m < m_start and (time.perf_counter() - t_start > recover_seconds
-                                                            or pinned >= 2):
+        if recover_seconds is not None and m < m_start and time.perf_counter() - t_start > recover_seconds:
             info["unrecovered"] = True
             break
         # a minimum above RESTART_BELOW creeping up (rockarm: 0.518 -> 0.523 over five rounds of 0.4-0.7 s each)
