@@ -14,7 +14,8 @@ from hexsos_plugins.cells.quality import hex_edge_ratio, sample_scaled_jacobians
 from hexsos_plugins.examples import cubed_ball, structured_grid
 from hexsos_plugins.meshrepair import SURFACE_TOLERANCE, localopt
 from hexsos_plugins.meshrepair.boundary import boundary_model
-from hexsos_plugins.meshrepair.jointsteps import RATIO_SLACK, bernstein_gradients, joint_steps, sample_gradients
+from hexsos_plugins.meshrepair.jointsteps import (RATIO_SLACK, bernstein_gradients, binding_rows, joint_steps,
+                                                 sample_gradients)
 from hexsos_plugins.meshrepair.optimize import bernstein_coefficients
 
 SHARED = os.path.join(os.path.dirname(__file__), "..", "..", "shared", "data")
@@ -120,3 +121,38 @@ def test_published_kitten_joint_steps_pass_hexes_with_a_coefficient_near_zero():
     vertices now take steps of at most 0.3 sqrt(r) of their edge length, and the steps go on: past 0.285."""
     _, before, after = _joint_stage("kitten_with_bifur_3.mesh")
     assert before < 0.23 and after > 0.285, (before, after)
+
+
+def test_rows_that_cannot_bind_leave_the_program_as_it_was():
+    """``binding_rows``: on programs shaped as the joint steps' (max t, sample rows ``t + a.d <= b``, other rows
+    ``a.d <= b``, d in a box, some directions fixed), the rows left out never change the optimum, and most go. The
+    sample row that bounds t least (here one with no move term: a hex whose vertices cannot move) must stay: leaving
+    out the rows whose right side merely reaches their bound, that row with them, lets t rise past it."""
+    from scipy.optimize import linprog
+    from scipy.sparse import csr_matrix
+
+    rng = np.random.default_rng(5)
+    for trial in range(6):
+        nv, ns, no = 60, 400, 80
+        box = np.where(rng.random(nv) < 0.2, 0.0, 1.0)
+        A = rng.standard_normal((ns + no, nv)) * (rng.random((ns + no, nv)) < 0.05) * 0.01
+        b = np.concatenate([rng.random(ns) * 0.5, 0.02 + rng.random(no)])
+        A[0] = 0.0
+        b[0] = float(np.min(b[1:ns] + np.abs(A[1:ns]) @ box)) * 0.5  # binds, and defines the bound on t
+        Afull = csr_matrix(np.column_stack([A, np.r_[np.ones(ns), np.zeros(no)]]))
+        bounds = np.column_stack([-np.r_[box, 1.0], np.r_[box, 1.0]])
+        bounds[-1] = (-np.inf, np.inf)
+        cost = np.zeros(nv + 1)
+        cost[-1] = -1.0
+        full = linprog(cost, A_ub=Afull, b_ub=b, bounds=bounds, method="highs-ipm")
+        Ar, br = binding_rows(Afull, b, box, ns)
+        red = linprog(cost, A_ub=Ar, b_ub=br, bounds=bounds, method="highs-ipm")
+        assert full.status == 0 and red.status == 0
+        assert red.fun == pytest.approx(full.fun, abs=1e-9) and full.x[-1] == pytest.approx(b[0], abs=1e-9)
+        assert (Afull @ red.x - b).max() < 1e-9  # the reduced program's optimum satisfies every row
+        assert br.size < 0.5 * b.size, (br.size, b.size)
+        reach = abs(Afull[:, :-1]) @ box
+        need = reach + np.where(np.arange(b.size) < ns, b[0] + reach[0], 0.0)
+        loose = ~(b >= need)  # ties left out too
+        wrong = linprog(cost, A_ub=Afull[loose], b_ub=b[loose], bounds=bounds, method="highs-ipm")
+        assert wrong.status == 0 and wrong.x[-1] > 1.5 * b[0], (trial, wrong.x[-1], b[0])

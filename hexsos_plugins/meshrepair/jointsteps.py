@@ -27,7 +27,7 @@ from ..cells.quality import SAMPLES, hex_edge_ratio
 from .localopt import BAND_BELOW, RATIO_FLOOR, band_limits, vertex_freedoms
 from .optimize import bernstein_matrix, cof3, hex_bernstein_samples
 
-__all__ = ["joint_steps", "sample_gradients", "bernstein_gradients", "SPAN", "MAX_HEXES", "RATIO_SLACK"]
+__all__ = ["joint_steps", "sample_gradients", "bernstein_gradients", "binding_rows", "SPAN", "MAX_HEXES", "RATIO_SLACK"]
 
 #: The hexes whose vertices move: within this of the minimum, the :data:`MAX_HEXES` lowest at most (measured on
 #: the published meshes after the vertex steps, 10 s each, with a box for the band: 50 reached as high as 100 and
@@ -96,6 +96,19 @@ def _rows(coef, vid, col, B, row):
     keep = c >= 0
     gy = np.einsum("pa,pad->pd", coef[keep], B[vid[keep]])
     return (np.repeat(row[keep], 3), (3 * c[keep][:, None] + np.arange(3)).ravel(), gy.ravel())
+
+
+def binding_rows(A, b, box, n_t):
+    """The rows of the program ``A [d, t] <= b`` (d within +-``box``, the first ``n_t`` rows the samples', with t)
+    that can bind. Every sample row bounds t by its right side plus its largest move term, so t <= T, the least of
+    these; a sample row whose right side is above T plus its own largest move term, or another row whose right
+    side is above its largest move term, holds for every point of the box: it is left out (the program's feasible
+    set stays the same; on the published meshes 85-95% of the rows, a third of the solver's time)."""
+    reach = abs(A[:, :-1]) @ box
+    T = float(np.min(b[:n_t] + reach[:n_t]))
+    need = reach + np.where(np.arange(b.size) < n_t, T, 0.0)
+    keep = ~(b > need)
+    return A[keep], b[keep]
 
 
 def joint_steps(V, H, movable, *, boundary=None, deadline=None, target=None, band_below=BAND_BELOW, span=SPAN,
@@ -233,12 +246,14 @@ def joint_steps(V, H, movable, *, boundary=None, deadline=None, target=None, ban
         Aub.data[np.abs(Aub.data) < 1e-12 * np.abs(Aub.data).max()] = 0.0
         Aub.eliminate_zeros()
         on = np.append(dims[verts].ravel(), 1.0)
+        b_ub = np.concatenate(rhs)
+        Aub, b_ub = binding_rows(Aub, b_ub, on[:-1], nh * K)
         bounds = np.column_stack([-on, on])
         bounds[-1] = (-np.inf, np.inf)
         cost = np.zeros(nv + 1)
         cost[-1] = -1.0
         left = LP_SECONDS if deadline is None else max(min(LP_SECONDS, deadline - time.perf_counter()), 0.01)
-        res = linprog(cost, A_ub=Aub, b_ub=np.concatenate(rhs), bounds=bounds, method=LP_METHOD,
+        res = linprog(cost, A_ub=Aub, b_ub=b_ub, bounds=bounds, method=LP_METHOD,
                       options={"time_limit": left})
         info["tries"] += 1
         kept = False
