@@ -19,7 +19,7 @@ import time
 import numpy as np
 
 from ..cells.hexahedron import EDGES
-from ..cells.quality import SAMPLES
+from ..cells.quality import SAMPLES, SHORT_EDGE_RATIO
 
 __all__ = ["local_sweeps", "local_untangle", "vertex_freedoms", "band_limits", "BAND_BELOW", "RATIO_FLOOR"]
 
@@ -34,8 +34,9 @@ BAND_BELOW = 0.75
 #: steps raised it by collapsing edges (after the last pass on cat_2, rockarm and dinopet_graded the least ratio was
 #: 1e-5 to 1e-4). Measured there in single runs, before stage 2's edge term reached the boundary edges: 0.02 left
 #: the minimum where it was (0.780, 0.733, 0.640) but drove edges down to the floor (61-88 hexes below 0.05); 0.1
-#: cost it (0.655, 0.257, 0.549); 0.05: 0.746, 0.684, 0.632.
-RATIO_FLOOR = 0.05
+#: cost it (0.655, 0.257, 0.549); 0.05: 0.746, 0.684, 0.632. It is the reports' short-edge threshold
+#: (:data:`hexsos_plugins.cells.quality.SHORT_EDGE_RATIO`): the steps make no hex the report counts as short-edged.
+RATIO_FLOOR = SHORT_EDGE_RATIO
 
 
 def _incidence(H, N):
