@@ -6,6 +6,7 @@ of the prisms through :data:`hexsos_plugins.cells.elements.ELEMENTS`, the scaled
 """
 
 import json
+import os
 import subprocess
 import sys
 
@@ -583,3 +584,27 @@ def test_published_dolphin_stress_test_untangles_against_smoothed_sizes():
     assert r.success and _certified(r.points, mesh.hexes) and r.stats["invalid_after"] == 0
     assert r.stats["untangled"] and not r.stats["fallback_used"] and r.stats["min_sj_after"] > 0.3
     assert r.stats["edge_ratio_after"] >= 0.02
+
+
+def test_one_blas_thread_includes_scipys_own():
+    """``blas.single_thread``: within the block every OpenBLAS of the process runs one thread, scipy's too, even when
+    nothing imported scipy before (the curved repair's path); after it, each has its threads back. A fresh process
+    with OpenBLAS at 2 threads; without the block's own load of scipy, scipy's library would come later and spin."""
+    code = (
+        "import sys, numpy\n"
+        "from hexsos_plugins.meshrepair.blas import single_thread, thread_counts\n"
+        "assert 'scipy.optimize' not in sys.modules\n"
+        "before = thread_counts()\n"
+        "with single_thread():\n"
+        "    inside = thread_counts()\n"
+        "    import scipy.optimize\n"
+        "    assert thread_counts() == inside\n"
+        "after = thread_counts()\n"
+        "import json; print(json.dumps([len(before), inside, after]))\n")
+    env = dict(os.environ, OPENBLAS_NUM_THREADS="2")
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    n_before, inside, after = json.loads(out.stdout)
+    if not after or max(after) < 2:
+        pytest.skip("this OpenBLAS does not report its threads")
+    assert len(inside) > n_before and set(inside) == {1} and set(after) == {2}, out.stdout

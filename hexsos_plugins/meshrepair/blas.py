@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import contextlib
 import ctypes
+import importlib
 import os
 
 _PAIRS = (("openblas_get_num_threads", "openblas_set_num_threads"),
@@ -58,7 +59,10 @@ def _functions(path):
 
 @contextlib.contextmanager
 def single_thread():
-    """Within the block every loaded OpenBLAS runs on the calling thread (restored after)."""
+    """Within the block every loaded OpenBLAS runs on the calling thread (restored after). scipy's own OpenBLAS is
+    loaded first (its optimizers are what the block runs), so a first call before anything imported scipy sets it
+    too."""
+    importlib.import_module("scipy.optimize")
     saved = []
     try:
         for get, set_ in _loaded():
@@ -79,3 +83,8 @@ def single_thread():
                 set_(n)
             except Exception:  # noqa: BLE001
                 pass
+
+
+def thread_counts():
+    """The thread count of every OpenBLAS loaded in this process that this module can read and set."""
+    return [int(get()) for get, _ in _loaded()]

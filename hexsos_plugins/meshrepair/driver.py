@@ -416,8 +416,6 @@ def repair(points, hexes, *, cells=None, method: str = "optimize", boundary: str
                              max_iter=100 if max_iter is None else int(max_iter), kernel_method=kernel_method,
                              relaxation=relaxation, progress=progress, callback=callback, anchor=anchor,
                              max_steps=max_steps, jobs=jobs, scheduler=scheduler)
-    import scipy.optimize  # noqa: F401 - loads scipy's BLAS before the thread count is set
-
     from .blas import single_thread
 
     with single_thread():
