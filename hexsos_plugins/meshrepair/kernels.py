@@ -2,14 +2,18 @@
 
 Each loop runs over the cells of one block and, per cell, over its samples ``E_k = X^T G_k`` (3x3), and adds
 its gradient straight into the vertex gradient ``g`` (N, 3). IEEE double precision, no fast-math. The
-vectorized numpy expressions in :mod:`hexsos_plugins.meshrepair.optimize` compute the same numbers (tested), and are
-used when numba is not installed.
+vectorized numpy expressions in :mod:`hexsos_plugins.meshrepair.optimize` compute the same numbers (tested).
+
+numba compiles the loops at first use and caches them (``cache=True``). :func:`load` compiles or loads every loop
+the repair calls, for the argument types of :data:`SIGNATURES`, before the repair's clocks start: the stages'
+budgets in seconds then do not pay for a first compilation (measured: a first repair of the bunny spent 22 s of
+its untangling's and its whole quality stage's 30 s compiling, and ended at 0.705 against 0.789 once cached).
 """
 
 from __future__ import annotations
 
 import numpy as np
-from numba import njit, prange
+from numba import njit, prange, types
 
 from ..cells.hexahedron import EDGES
 
@@ -872,3 +876,44 @@ def sweep_bernstein(V, conn, inv3, order, ptr, inc, loc, proj, step0, tau, max_s
                 cell_q[m] = ev2[0]
             accepted += 1
     return accepted
+
+
+_F1, _F2, _F3 = types.float64[::1], types.float64[:, ::1], types.float64[:, :, ::1]
+_I1, _I2 = types.int64[::1], types.int64[:, ::1]
+_f8, _i8, _b1 = types.float64, types.int64, types.boolean
+
+#: The argument types the repair calls each loop with (C-contiguous float64 / int64 arrays, writable: the driver
+#: copies the caller's connectivity, so that a read-only one is not a second type); a call with other types still
+#: works, compiled at that call.
+SIGNATURES = {
+    "untangle_corners": (_F2, _I2, _F3, _F1, _f8, _f8, _F2, _b1),
+    "untangle_bernstein": (_F2, _I2, _I1, types.float64[:, :, :], _F2, _F1, _f8, _f8, _F2, _b1),
+    "_barrier_serial": (_F2, _I2, _F3, _f8, _f8, _F1, _f8, _b1, _b1, _F1, _F1, types.boolean[::1], _F3),
+    "hex_bernstein": (_F2, _I2),
+    "hex_edge_term": (_F2, _I2, _F1, _f8, _F2),
+    "scatter_cells": (_F2, _I2, _F3),
+    "edge_ratios2": (_F2, _I2, _F1),
+    "edge_ratios_above": (_F2, _I2, _F1),
+    "cell_minima": (_F2, _I2, _F3, _f8),
+    "bernstein_minima": (_F2, _I2, _F1),
+    "sweep": (_F2, _I2, _F3, _f8, _I1, _I1, _I1, _I1, _F3, _F1, _f8, _i8, _F1, _F2, _F3, _F1, _f8),
+    "sweep_bernstein": (_F2, _I2, _F1, _I1, _I1, _I1, _I1, _F3, _F1, _f8, _i8, _F1, _f8),
+}
+
+
+def _dispatchers():
+    return [(globals()[name], sig) for name, sig in SIGNATURES.items()]
+
+
+def compiles_at_first_use() -> bool:
+    """Whether some loop of :data:`SIGNATURES` has nothing in numba's cache for this source yet: :func:`load`
+    (the first repair) compiles it (47 s for all of them on 2 cores, once)."""
+    from ..kernel.compiled import jit_cached
+
+    return any(jit_cached(fn) is False for fn, _ in _dispatchers())
+
+
+def load() -> None:
+    """Compile, or load from numba's cache, every loop of :data:`SIGNATURES` (a few milliseconds once cached)."""
+    for fn, sig in _dispatchers():
+        fn.compile(sig)
