@@ -47,6 +47,22 @@ def test_gradients_match_finite_differences():
             assert np.allclose(db[:, :, n, a], fdb, rtol=1e-5, atol=1e-6)
 
 
+def test_the_low_coefficients_gradients_are_the_full_ones_at_those_coefficients():
+    """``bernstein_gradients(X, low=...)``, what the joint steps use: exactly the coefficients below ``low`` of
+    their hex's largest, each with its row of the full gradient (up to rounding: other summation order), on
+    distorted hexes whose coefficients spread widely."""
+    rng = np.random.default_rng(5)
+    P, H = structured_grid(1, 1, 1)
+    X = np.stack([P[H[0]] + 0.25 * rng.standard_normal((8, 3)) for _ in range(40)])
+    b, db = bernstein_gradients(X)
+    for low in (0.1, 0.3, 0.6):
+        b2, (hh, pp, dbl) = bernstein_gradients(X, low=low)
+        assert np.array_equal(b2, b)
+        want = np.argwhere(b < low * b.max(axis=1)[:, None])
+        assert 0 < len(want) < b.size and np.array_equal(np.column_stack([hh, pp]), want)
+        assert np.allclose(dbl, db[hh, pp], rtol=1e-12, atol=1e-12 * np.abs(db).max())
+
+
 def test_joint_steps_lift_where_the_vertex_steps_stop():
     """A 3^3 cubed ball with its band: the vertex steps stop at 0.855 (20 sweeps more gain nothing: each vertex alone
     cannot move without lowering a neighbour); the joint steps from there reach 0.89, valid, every boundary vertex

@@ -710,3 +710,33 @@ def test_cli_says_when_the_repair_compiles_its_loops(tmp_path, capsys, monkeypat
     err = capsys.readouterr().err
     assert rc == 0
     assert ("compiling the repair's loops, once" in err) == first, err
+
+
+def test_the_kept_surface_tree_finds_what_libigls_per_call_search_finds():
+    """``BoundaryModel.nearest`` keeps one AABB tree per model (surface triangles, feature segments); its nearest
+    points, distances and elements are those of ``igl.point_mesh_squared_distance`` (a fresh tree per call) to the
+    bit, for points off a curved solid with feature curves (:func:`comparison.stress.graded_solid`), at the first call
+    and at the next ones on the kept tree; the projections built on it (``closest``, ``distance``) too."""
+    import igl
+
+    from hexsos_plugins.meshrepair.boundary import boundary_model
+
+    Q, H = graded_solid(6)
+    bm = boundary_model(Q, [("hexahedron", H)])
+    rng = np.random.default_rng(2)
+    V = Q + 0.05 * rng.standard_normal(Q.shape)
+    for kind, F in ((0, bm.surf_F), (1, bm.feat_E)):
+        rows = bm.vertices[bm.kind == kind]
+        assert rows.size > 10 and F.shape[0] > 10
+        ref = igl.point_mesh_squared_distance(np.ascontiguousarray(V[rows]), bm.surf_V,
+                                              np.ascontiguousarray(F, dtype=np.int64))
+        for _ in range(2):
+            d2, I, C = bm.nearest(V[rows], kind)
+            assert np.array_equal(d2, np.ravel(ref[0])) and np.array_equal(I, np.ravel(ref[1]))
+            assert np.array_equal(C, ref[2])
+        W = bm.closest(V)
+        assert np.array_equal(W[rows], ref[2])
+    d = bm.distance(V)
+    ref = igl.point_mesh_squared_distance(np.ascontiguousarray(V[bm.vertices]), bm.surf_V,
+                                          np.ascontiguousarray(bm.surf_F, dtype=np.int64))
+    assert np.array_equal(d, np.sqrt(np.ravel(ref[0])))
