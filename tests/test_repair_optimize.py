@@ -740,3 +740,29 @@ def test_the_kept_surface_tree_finds_what_libigls_per_call_search_finds():
     ref = igl.point_mesh_squared_distance(np.ascontiguousarray(V[bm.vertices]), bm.surf_V,
                                           np.ascontiguousarray(bm.surf_F, dtype=np.int64))
     assert np.array_equal(d, np.sqrt(np.ravel(ref[0])))
+
+
+@pytest.mark.parametrize("end, low, high", [(0.0, 0.0, 5.0), (1e6, 25.0, 30.0)])
+def test_the_rounds_end_quality_end_after_the_start(monkeypatch, end, low, high):
+    """Without a time limit stage 2's rounds get QUALITY_SECONDS (30) but end QUALITY_END after the repair's start,
+    with at least QUALITY_MIN_SECONDS (5): a long untangling comes out of the rounds' time. With the end at the
+    start itself every chunk of rounds is given at most the 5 s (a rule left out gives it 30); with the end far
+    away, the 30."""
+    import time as _time
+
+    from hexsos_plugins.meshrepair import driver
+
+    left = []
+    real = op.improve
+
+    def spy(prob, **kw):
+        left.append(kw["deadline"] - _time.perf_counter())
+        return real(prob, **kw)
+
+    monkeypatch.setattr(op, "improve", spy)
+    monkeypatch.setattr(driver, "QUALITY_END", end)
+    assert driver.QUALITY_MIN_SECONDS == 5.0 and driver.QUALITY_SECONDS == 30.0
+    P, H, _ = single_fold(4)
+    r = hs.repair(P, H)
+    assert r.success and left
+    assert all(low < x <= high for x in left), left

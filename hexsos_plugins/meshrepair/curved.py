@@ -46,7 +46,8 @@ import numpy as np
 from ..cells.elements import ELEMENTS
 from ..cells.inputs import checked_block
 from ..cells.jacobian import factor_indices, space
-from ..errors import DependencyError, InvalidInputError, NoCellsError
+from ..errors import InvalidInputError, NoCellsError
+from .boundary import NearestPoints
 from .result import RepairResult
 
 __all__ = ["repair_curved", "needs_curved", "curved_blocks", "coefficient_tables", "fast_coefficients", "kernel_coefficients", "curved_scaled_jacobian",
@@ -234,6 +235,7 @@ class CurvedBoundary:
         self.kind, self.normal, self.tangent = kind, normal, tangent
         self.surf_V, self.surf_F, self.curve_V, self.curve_E = surf_V, surf_F, curve_V, curve_E
         self.feature_edges = feature_edges
+        self.nearest = (NearestPoints(surf_V, surf_F), NearestPoints(curve_V, curve_E))  # trees built at first use
 
     @property
     def nodes(self):
@@ -242,15 +244,13 @@ class CurvedBoundary:
     def project(self, V, idx) -> np.ndarray:
         """V with the nodes ``idx`` of kinds 0 and 1 moved to the nearest point of the input's curved faces /
         feature curves (sampled)."""
-        igl = _igl()
         W = np.array(V, dtype=np.float64, copy=True)
         idx = np.asarray(idx, dtype=np.int64)
-        for kind, (SV, SF) in ((0, (self.surf_V, self.surf_F)), (1, (self.curve_V, self.curve_E))):
+        for kind, SF in ((0, self.surf_F), (1, self.curve_E)):
             rows = idx[self.kind[idx] == kind]
             if rows.size == 0 or SF.shape[0] == 0:
                 continue
-            _, _, C = igl.point_mesh_squared_distance(np.ascontiguousarray(W[rows]), SV, SF)
-            W[rows] = C
+            W[rows] = self.nearest[kind](W[rows])[2]
         return W
 
     def distance(self, V, idx=None) -> np.ndarray:
@@ -258,18 +258,7 @@ class CurvedBoundary:
         rows = self.nodes if idx is None else np.asarray(idx, dtype=np.int64)
         if rows.size == 0:
             return np.zeros(0)
-        d2, _, _ = _igl().point_mesh_squared_distance(np.ascontiguousarray(V[rows], dtype=np.float64), self.surf_V,
-                                                       self.surf_F)
-        return np.sqrt(d2)
-
-
-def _igl():
-    try:
-        import igl
-    except ImportError as exc:
-        raise DependencyError("boundary='slide' projects onto the input's curved faces with libigl: pip install "
-                              "libigl (or repair with boundary='fixed' / 'free')") from exc
-    return igl
+        return np.sqrt(self.nearest[0](V[rows])[0])
 
 
 def curved_boundary(points, cells, *, feature_angle: float = 45.0) -> CurvedBoundary:

@@ -77,6 +77,12 @@ _TAU_MAX = 0.75
 #: past them the minimum creeps (rockarm: 0.518 -> 0.523 over the last five of 80 rounds at 0.4-0.7 s each; a
 #: 34,880-hex mesh took 291 s for 54 rounds), and the vertex steps take what stage 2 leaves in a second or two
 QUALITY_SECONDS = 30.0
+#: Without a time limit stage 2's rounds also end this many seconds after the repair's start, but run at least
+#: QUALITY_MIN_SECONDS: a long untangling comes out of the rounds' time, not on top of it, so that the rounds, the
+#: vertex steps (LOCAL_SECONDS) and the joint steps (JOINT_SECONDS) end within about a minute (the 34,880-hex
+#: kitten_with_bifur_3 perturbed by 3 edge lengths: 40 s of untangling on a slow day, then 14 s of rounds, 64 s)
+QUALITY_END = 35.0
+QUALITY_MIN_SECONDS = 5.0
 LOCAL_SECONDS = 10.0
 #: Stage 2c's budget (joint steps; on the published meshes they end in 1-10 s: Dolphin_2 at this budget, and four
 #: of the sixteen perturbed ones)
@@ -303,7 +309,9 @@ def repair(points, hexes, *, cells=None, method: str = "optimize", boundary: str
         ``"paper"``: most outer iterations of Algorithm 2 (default 100).
     time_limit : float, optional, keyword-only
         Seconds for stages 1 and 2 (default None: the untangling has UNTANGLE_SECONDS = 60, stage 2's rounds
-        QUALITY_SECONDS = 30 and the last vertex steps LOCAL_SECONDS = 10); certification always runs. Counted
+        QUALITY_SECONDS = 30 but end QUALITY_END = 35 s after the start unless that leaves them less than
+        QUALITY_MIN_SECONDS = 5, the last vertex steps LOCAL_SECONDS = 10 and the joint steps JOINT_SECONDS = 10);
+        certification always runs. Counted
         from the start, after the compiled loops are loaded (compiled the first time: ``stats["load_seconds"]``).
     feature_angle : float, keyword-only
         ``boundary="slide"``: boundary edges whose faces' normals differ by more than this (degrees) are
@@ -818,7 +826,7 @@ class _Optimize:
             ts = time.perf_counter()
             deadline = deadline1 = deadline0  # the caller's; without one stage 2 has QUALITY_SECONDS
             if self.time_limit is None:
-                deadline = ts + QUALITY_SECONDS
+                deadline = min(ts + QUALITY_SECONDS, max(self.t0 + QUALITY_END, ts + QUALITY_MIN_SECONDS))
             if untangled and self.local_steps and PRE_STEPS:
                 # the vertex steps first: from a just-untangled mesh (min SJ near 0) they raise the minimum in
                 # a second where the barrier's rounds gain 0.002 each (bunny: 0.003 -> 0.09 in 30 s of rounds)
