@@ -12,9 +12,10 @@ length (a band: the repair's quality is capped by the surface where it must stay
 * Vertex kinds: *surface* (no feature edge), *curve* (exactly two feature edges), *corner* (one, or three or
   more: the ends and junctions of feature curves), pinned.
 
-Projection uses libigl's exact point-to-simplex distance (an AABB tree, ``igl.AABB``, built once per model and
-kept: ``igl.point_mesh_squared_distance`` builds one per call) onto the input's boundary triangles (quads split along their 0-2 diagonal, as :mod:`hexsos_plugins.meshrepair.fidelity`
-does) for surface vertices, and onto the input's feature segments for curve vertices.
+Projection uses libigl's exact point-to-simplex distance (an AABB tree built once per model and kept,
+:class:`NearestPoints`) onto the input's boundary triangles (quads split along their 0-2 diagonal, as
+:mod:`hexsos_plugins.meshrepair.fidelity` does) for surface vertices, and onto the input's feature segments for
+curve vertices.
 """
 
 from __future__ import annotations

@@ -34,31 +34,6 @@ def cofactor(J, C):
 
 
 @njit(cache=True, inline="always")
-def _sample(V, conn, m, G, k, J):
-    n = conn.shape[1]
-    for a in range(3):
-        for d in range(3):
-            acc = 0.0
-            for i in range(n):
-                gi = G[k, i, d]
-                if gi != 0.0:
-                    acc += V[conn[m, i], a] * gi
-            J[a, d] = acc
-
-
-@njit(cache=True, inline="always")
-def _scatter(g, conn, m, G, k, dE):
-    n = conn.shape[1]
-    for i in range(n):
-        v = conn[m, i]
-        for d in range(3):
-            gi = G[k, i, d]
-            if gi != 0.0:
-                for a in range(3):
-                    g[v, a] += dE[a, d] * gi
-
-
-@njit(cache=True, inline="always")
 def _chi(D, e2):
     """chi(D, eps) = (D + sqrt(eps^2 + D^2)) / 2 and d chi / dD, without the cancellation of D + r for D < 0
     (there chi = eps^2 / (2 (r - D)): with D = -0.9 and eps = 1e-9 the direct sum is exactly 0)."""
@@ -72,9 +47,14 @@ def _chi(D, e2):
 
 @njit(cache=True)
 def untangle_corners(V, conn, G, s, eps, theta, g, want_grad):
-    """Stage 1 over corner samples G (K, n, 3) (ideal-cell corners folded in): returns (energy, min D)."""
+    """Stage 1 over corner samples G (K, n, 3) (ideal-cell corners folded in): returns (energy, min D). Each cell's
+    nodes are read once and its gradient summed over its samples before it goes into ``g`` (read and scattered per
+    sample, the loop took 17 ms instead of 13 on 10,000 hexes of kitten_with_bifur_3)."""
     M = conn.shape[0]
     K = G.shape[0]
+    n = conn.shape[1]
+    X = np.empty((n, 3))
+    gl = np.empty((n, 3))
     J = np.empty((3, 3))
     C = np.empty((3, 3))
     dE = np.empty((3, 3))
@@ -82,13 +62,22 @@ def untangle_corners(V, conn, G, s, eps, theta, g, want_grad):
     dmin = np.inf
     e2 = eps * eps
     for m in range(M):
+        for i in range(n):
+            v = conn[m, i]
+            X[i, 0] = V[v, 0]
+            X[i, 1] = V[v, 1]
+            X[i, 2] = V[v, 2]
+        if want_grad:
+            gl[:] = 0.0
         inv = 1.0 / s[m]
         for k in range(K):
-            _sample(V, conn, m, G, k, J)
             F = 0.0
             for a in range(3):
                 for d in range(3):
-                    J[a, d] *= inv
+                    acc = 0.0
+                    for i in range(n):
+                        acc += X[i, a] * G[k, i, d]
+                    J[a, d] = acc * inv
                     F += J[a, d] * J[a, d]
             D = cofactor(J, C)
             if D < dmin:
@@ -102,7 +91,18 @@ def untangle_corners(V, conn, G, s, eps, theta, g, want_grad):
                 for a in range(3):
                     for d in range(3):
                         dE[a, d] = (2.0 * (1.0 - theta) * c23 * J[a, d] + coef * C[a, d]) * inv
-                _scatter(g, conn, m, G, k, dE)
+                for i in range(n):
+                    for d in range(3):
+                        gi = G[k, i, d]
+                        gl[i, 0] += dE[0, d] * gi
+                        gl[i, 1] += dE[1, d] * gi
+                        gl[i, 2] += dE[2, d] * gi
+        if want_grad:
+            for i in range(n):
+                v = conn[m, i]
+                g[v, 0] += gl[i, 0]
+                g[v, 1] += gl[i, 1]
+                g[v, 2] += gl[i, 2]
     return total, dmin
 
 
@@ -884,7 +884,8 @@ _f8, _i8, _b1 = types.float64, types.int64, types.boolean
 
 #: The argument types the repair calls each loop with (C-contiguous float64 / int64 arrays, writable: the driver
 #: copies the caller's connectivity, so that a read-only one is not a second type); a call with other types still
-#: works, compiled at that call.
+#: works, compiled at that call. ``_barrier_parallel`` (regions of PARALLEL_MIN_CELLS cells and more) is not among
+#: them: it compiles at its first use.
 SIGNATURES = {
     "untangle_corners": (_F2, _I2, _F3, _F1, _f8, _f8, _F2, _b1),
     "untangle_bernstein": (_F2, _I2, _I1, types.float64[:, :, :], _F2, _F1, _f8, _f8, _F2, _b1),
