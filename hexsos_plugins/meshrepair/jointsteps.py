@@ -94,13 +94,15 @@ def bernstein_gradients(X, low=None):
     -- the joint steps need a few (rockarm: all 27 for each hex took a quarter of their time)."""
     J = np.tensordot(X, _GB, axes=([1], [1])).transpose(0, 2, 1, 3)  # (M, 27, 3, 3)
     b = np.linalg.det(J) @ _TB.T
+
+    def sample_det_gradients(Js):  # (U, 27, 8, 3): det J's gradient at each of the 27 samples
+        return np.matmul(_GB[None], _cofactors(Js).transpose(0, 1, 3, 2))
+
     if low is None:
-        dd = np.einsum("snd,msad->msna", _GB, _cofactors(J))
-        return b, np.einsum("ps,msna->mpna", _TB, dd)
+        return b, np.einsum("ps,msna->mpna", _TB, sample_det_gradients(J))
     hh, pp = np.nonzero(b < low * b.max(axis=1)[:, None])
     u, inv = np.unique(hh, return_inverse=True)
-    dd = np.matmul(_GB[None], _cofactors(J[u]).transpose(0, 1, 3, 2))  # (U, 27, 8, 3): det's gradient per sample
-    return b, (hh, pp, np.einsum("ps,psna->pna", _TB[pp], dd[inv.ravel()]))
+    return b, (hh, pp, np.einsum("ps,psna->pna", _TB[pp], sample_det_gradients(J[u])[inv.ravel()]))
 
 
 def _rows(coef, vid, col, B, row):
