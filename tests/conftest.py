@@ -20,3 +20,12 @@ def bunny_path():
     if not os.path.exists(BUNNY):
         pytest.skip(f"{BUNNY} is absent (the paper's bunny mesh is read in place, never copied)")
     return BUNNY
+
+
+# the files that take longest (a wheel installed in a fresh venv, ParaView's GUI) start first: with one worker per
+# core (pyproject's addopts), a long file started last would leave the other core idle at the end
+LONGEST_FIRST = ("test_doors_wheel.py",)
+
+
+def pytest_collection_modifyitems(config, items):
+    items.sort(key=lambda item: item.path.name not in LONGEST_FIRST)

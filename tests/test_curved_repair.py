@@ -308,3 +308,83 @@ def test_the_skeleton_puts_high_order_nodes_back_on_moved_corners_with_their_cur
     pin[C[0, 8]] = True
     Wp = sk.place_high_order(V, P0, [("hexahedron27", C)], moved0, pin=pin)
     assert np.array_equal(Wp[C[0, 8]], V[C[0, 8]])  # a pinned node stays
+
+
+_LAZY_CURVED_LOOPS = """
+import json, sys
+import numpy as np
+sys.path.insert(0, "tests")
+import hexsos_plugins.meshrepair.curvedkernels as ck
+ck.load = lambda: None  # lazily compiled: each loop gets the types the curved repair really calls it with
+import hexsos_plugins as hs
+from test_curved_repair import _one_bad_tetra10, _tet_grid
+
+P, T = _tet_grid(3)
+P[np.flatnonzero(np.all((P > 0) & (P < 3), axis=1))[0]] += [1.6, 0.3, 0.2]
+assert hs.repair(P, np.zeros((0, 8), dtype=np.int64), cells=[("tetra", T)]).success
+P, T = _one_bad_tetra10()
+T = np.array(T)
+T.flags.writeable = False  # as hexsos_plugins.read gives the connectivity: a read-only array
+assert hs.repair(P, np.zeros((0, 8), dtype=np.int64), cells=[("tetra10", T)], boundary="free").success
+print(json.dumps({name: [[str(t) for t in s] for s in getattr(ck, name).signatures] for name in ck.SIGNATURES}))
+"""
+
+
+def test_the_curved_loops_loaded_before_the_clock_are_the_ones_the_repair_calls():
+    """``curvedkernels.load`` compiles (or loads) each loop for :data:`curvedkernels.SIGNATURES` before the curved
+    repair's clock starts; in a fresh process where it does nothing, curved repairs (linear tetrahedra, a tetra10
+    with a read-only connectivity) call every loop with exactly those types and no other (without the repair's
+    private copy of the connectivity, the read-only one compiles both loops a second time)."""
+    import json
+    import os
+
+    from hexsos_plugins.meshrepair import curvedkernels as ck
+
+    out = subprocess.run([sys.executable, "-c", _LAZY_CURVED_LOOPS], capture_output=True, text=True, timeout=600,
+                         cwd=os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+    assert out.returncode == 0, out.stderr[-2000:]
+    called = json.loads(out.stdout.strip().splitlines()[-1])
+    for name, sig in ck.SIGNATURES.items():
+        assert called[name] == [[str(t) for t in sig]], (name, called[name])
+
+
+def test_the_curved_repairs_clock_starts_after_its_loops_are_loaded(monkeypatch):
+    """A first compilation does not eat the curved repair's time limit: with a load of 3 s and a time limit of
+    1 s, the tetrahedra are still untangled and certified (a clock started before the load would find its
+    deadline gone before the first step), and ``stats`` says how long the load took."""
+    import time as _time
+
+    from hexsos_plugins.meshrepair import curvedkernels as ck
+
+    real = ck.load
+
+    def slow_load():
+        real()
+        _time.sleep(3.0)
+
+    monkeypatch.setattr(ck, "load", slow_load)
+    P, T = _tet_grid(3)
+    P[np.flatnonzero(np.all((P > 0) & (P < 3), axis=1))[0]] += [1.6, 0.3, 0.2]
+    r = hs.repair(P, np.zeros((0, 8), dtype=np.int64), cells=[("tetra", T)], time_limit=1.0)
+    assert r.stats["method"] == "curved" and r.stats["invalid_before"] >= 2
+    assert r.success and (hs.check(r.points, [("tetra", T)]).status == 1).all()
+    assert r.stats["load_seconds"] >= 3.0 and r.stats["seconds"] < r.stats["load_seconds"]
+
+
+@pytest.mark.parametrize("first", [True, False])
+def test_cli_says_when_the_curved_repair_compiles_its_loops(tmp_path, capsys, monkeypatch, first):
+    """``hexsos repair`` on a curved mesh says on stderr that the curved repair's loops compile once, exactly when
+    they would (asked of :mod:`curvedkernels`, not of the hexahedral repair's loops)."""
+    from hexsos_plugins.cli import main
+    from hexsos_plugins.meshrepair import curvedkernels as ck
+    from hexsos_plugins.meshrepair import kernels as lo
+
+    monkeypatch.setattr(ck, "compiles_at_first_use", lambda: first)
+    monkeypatch.setattr(lo, "compiles_at_first_use", lambda: not first)
+    P, T = _one_bad_tetra10()
+    src, out = tmp_path / "in.vtu", tmp_path / "out.vtu"
+    meshio.write(str(src), meshio.Mesh(P, [("tetra10", T)]))
+    rc = main(["repair", str(src), "-o", str(out), "--boundary", "free", "--no-progress", "--no-fidelity"])
+    err = capsys.readouterr().err
+    assert rc == 0
+    assert ("compiling the repair's loops, once" in err) == first, err

@@ -148,12 +148,15 @@ def run(args) -> int:
     from ..meshrepair import resolve_boundary
 
     boundary = resolve_boundary(args.boundary, method, args.pin_boundary)
-    if method == "optimize" and not curved:
-        from ..meshrepair.kernels import compiles_at_first_use
+    if method == "optimize":
+        if curved:
+            from ..meshrepair.curvedkernels import compiles_at_first_use
+        else:
+            from ..meshrepair.kernels import compiles_at_first_use
 
         if compiles_at_first_use():  # the wait before the first progress is then not a mystery
-            sys.stderr.write("hexsos: compiling the repair's loops, once (about a minute on 2 cores, then cached for "
-                             "every later repair)\n")
+            sys.stderr.write(f"hexsos: compiling the repair's loops, once ({'seconds' if curved else 'about a minute'}"
+                             " on 2 cores, then cached for every later repair)\n")
             sys.stderr.flush()
     bar = Progress("repairing", enabled=args.progress)
     best = _Best()

@@ -12,9 +12,9 @@ decided by the kernel (:func:`hexsos_plugins.check`), never here. IEEE double pr
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from numba import njit, types
 
-from .kernels import cofactor
+from .kernels import any_uncached, cofactor, compile_each
 
 
 @njit(cache=True)
@@ -163,3 +163,30 @@ def barrier(P, conn, cells, dN, Tf, sizes, scale, weight, eps, gcell, want_grad,
                     gcell[k, i, 1] += g * acc1
                     gcell[k, i, 2] += g * acc2
     return E, rmin
+
+
+_F1, _F2, _F3 = types.float64[::1], types.float64[:, ::1], types.float64[:, :, ::1]
+_I1, _I2 = types.int64[::1], types.int64[:, ::1]
+
+#: The argument types the curved repair calls each loop with (C-contiguous float64 / int64 arrays, writable:
+#: :func:`hexsos_plugins.meshrepair.curved.repair_curved` copies the caller's connectivity, so that a read-only one
+#: is not a second type); the same for every cell type.
+SIGNATURES = {
+    "coefficients": (_F2, _I2, _I1, _F3, _F3, _I1, _F2),
+    "barrier": (_F2, _I2, _I1, _F3, _F3, _I1, _F1, _F1, types.float64, _F3, types.boolean, _F1),
+}
+
+
+def _dispatchers():
+    return [(globals()[name], sig) for name, sig in SIGNATURES.items()]
+
+
+def compiles_at_first_use() -> bool:
+    """Whether some loop of :data:`SIGNATURES` has nothing in numba's cache for this source yet: :func:`load`
+    (the first curved repair) compiles it, once."""
+    return any_uncached(_dispatchers())
+
+
+def load() -> None:
+    """Compile, or load from numba's cache, every loop of :data:`SIGNATURES`."""
+    compile_each(_dispatchers())

@@ -906,15 +906,26 @@ def _dispatchers():
     return [(globals()[name], sig) for name, sig in SIGNATURES.items()]
 
 
+def any_uncached(loops) -> bool:
+    """Whether some of ``loops`` ((numba dispatcher, argument types) pairs) has nothing in numba's cache for its
+    current source yet (only the cache's index is read: asking compiles nothing)."""
+    from ..kernel.compiled import jit_cached
+
+    return any(jit_cached(fn) is False for fn, _ in loops)
+
+
+def compile_each(loops) -> None:
+    """Compile, or load from numba's cache, each of ``loops`` ((dispatcher, argument types) pairs)."""
+    for fn, sig in loops:
+        fn.compile(sig)
+
+
 def compiles_at_first_use() -> bool:
     """Whether some loop of :data:`SIGNATURES` has nothing in numba's cache for this source yet: :func:`load`
     (the first repair) compiles it (47 s for all of them on 2 cores, once)."""
-    from ..kernel.compiled import jit_cached
-
-    return any(jit_cached(fn) is False for fn, _ in _dispatchers())
+    return any_uncached(_dispatchers())
 
 
 def load() -> None:
     """Compile, or load from numba's cache, every loop of :data:`SIGNATURES` (a few milliseconds once cached)."""
-    for fn, sig in _dispatchers():
-        fn.compile(sig)
+    compile_each(_dispatchers())
