@@ -185,7 +185,7 @@ def starts(n, names=None):
         got, ratio, far = [], [], 0.0
         for seed in range(1, n + 1):
             P = m.points + 1e-12 * diag * np.random.default_rng(seed).standard_normal(m.points.shape)
-            r = repair(P, m.hexes)
+            r = repair(P, m.hexes, jobs=0)  # every core, as `hexsos repair`
             got.append(r.stats["min_sj_after"] if r.success else float("nan"))
             ratio.append(edge_ratio_summary(r.points, m.hexes)[0])
             far = max(far, r.stats.get("boundary_max_distance", 0.0) / diag)
@@ -211,7 +211,7 @@ def perturbed(names=None, amps=(1.5, 3.0)):
         for amp in amps:
             P = stress(m.points, m.hexes, frac=1.0, amp=amp, seed=0 if amp == 1.5 else 1)
             t0 = time.perf_counter()
-            r = repair(P, m.hexes)
+            r = repair(P, m.hexes, jobs=0)  # every core, as `hexsos repair`
             t = time.perf_counter() - t0
             print(f"| {name} | {len(m.hexes):,} | {amp:g} | "
                   f"{r.stats['invalid_before'] + r.stats['undecided_before']:,} -> "
@@ -285,7 +285,7 @@ def published(local=False, names=None):
     for name, m in _published_meshes(names):
         print(f"  {name}: {len(m.hexes)} hexes ...", file=sys.stderr, flush=True)
         t0 = time.perf_counter()
-        res = repair(m.points, m.hexes, local=local)
+        res = repair(m.points, m.hexes, local=local, jobs=0)  # every core, as `hexsos repair`
         t = time.perf_counter() - t0
         row = _row(name, m.points, m.hexes, [], res.points, m.hexes, t, res.success)
         row.update(stage_seconds=res.stats["stage_seconds"], moved=res.stats["moved_vertices"],

@@ -147,3 +147,29 @@ def test_repair_on_processes_and_dask_matches_the_serial_repair():
                 d = hs.repair(P, H, method="paper", scheduler=client)
             assert d.success and np.allclose(d.points, ref.points, rtol=0, atol=1e-9)
             assert any("_pi_task" in t["key"] for t in stream.data)  # Algorithm 1 ran on the workers
+
+
+def test_run_all_runs_its_calls_at_once_on_the_kernels_threads_and_in_order_inline():
+    """``kernel.pool.run_all``: with two threads allowed, two calls that each wait for the other (a barrier) both
+    finish, so they ran at the same time; their results come back in the calls' order. With one thread they run in
+    the calling thread, one after the other (the same barrier would then never open)."""
+    import threading
+
+    from hexsos_plugins.kernel import pool
+
+    old = pool.set_threads(2)
+    try:
+        gate = threading.Barrier(2, timeout=20)
+        pool.last_threads.clear()
+        out = pool.run_all([lambda: (gate.wait(), "a")[1], lambda: (gate.wait(), "b")[1], lambda: "c"])
+        assert out == ["a", "b", "c"] and len(pool.last_threads) == 2
+        pool.set_threads(1)
+        pool.last_threads.clear()
+        me = threading.get_ident()
+        assert pool.run_all([lambda: threading.get_ident(), lambda: 7]) == [me, 7]
+        assert pool.last_threads == set()
+        one = threading.Barrier(2, timeout=0.5)
+        with pytest.raises(threading.BrokenBarrierError):
+            pool.run_all([one.wait, one.wait])
+    finally:
+        pool.set_threads(old)

@@ -766,3 +766,37 @@ def test_the_rounds_end_quality_end_after_the_start(monkeypatch, end, low, high)
     r = hs.repair(P, H)
     assert r.success and left
     assert all(low < x <= high for x in left), left
+
+
+def test_stage_one_on_a_large_block_runs_in_parts_on_threads_with_the_same_numbers():
+    """Stage 1's corner term on a block of ``UNTANGLE_PARTS_MIN_CELLS`` cells and more runs in parts of consecutive
+    cells on the kernel's threads: with two threads it runs on two (the pool's record), the energy, the minimum and
+    the gradient are those of one pass over the block up to rounding (a part left out or counted twice is off by a
+    quarter), and bit for bit those of one thread (the parts do not depend on the threads)."""
+    from hexsos_plugins.kernel import pool
+    from hexsos_plugins.meshrepair import kernels as lo
+    from hexsos_plugins.meshrepair.driver import cell_size
+
+    P, H = structured_grid(21)
+    assert H.shape[0] >= op.UNTANGLE_PARTS_MIN_CELLS
+    P = stress(P, H, frac=0.3, amp=0.8, seed=3)
+    prob = op.Problem(P, [("hexahedron", H)], [cell_size(P, "hexahedron", H)], np.ones(len(P), dtype=bool))
+    x, eps = prob.x0(), 0.05
+    b = prob.blocks[0]
+    g1 = np.zeros((len(P), 3))
+    e1, d1 = lo.untangle_corners(prob.full(x), b["conn"], b["Gw3"], b["s"], eps, op.THETA, g1, True)
+    assert d1 < 0  # inverted corners: the barrier's hard part is in the sum
+    runs = {}
+    for threads in (1, 2):
+        old = pool.set_threads(threads)
+        pool.last_threads.clear()
+        try:
+            runs[threads] = prob.untangle_energy(x, eps, None)
+        finally:
+            pool.set_threads(old)
+        assert len(pool.last_threads) == (2 if threads == 2 else 0)
+    e, g = runs[1]
+    assert np.isclose(e, e1, rtol=1e-12)
+    assert np.allclose(g, g1[prob.free].ravel(), rtol=1e-10, atol=1e-12 * np.abs(g1).max())
+    e2, g2 = runs[2]
+    assert e2 == e and np.array_equal(g2, g)

@@ -1,7 +1,8 @@
 """The kernel's threads: its chunk functions release the GIL, so cells run in parallel on Python threads of one
 pool; each task owns its scratch arrays and nothing is pickled; a small call runs in the calling thread at once.
 
-Owns: the thread count (:func:`set_threads`, :func:`threads`), :func:`spread`. Imports nothing of hexsos.
+Owns: the thread count (:func:`set_threads`, :func:`threads`), :func:`spread`, :func:`run_all`. Imports nothing of
+hexsos.
 """
 
 from __future__ import annotations
@@ -11,7 +12,8 @@ import threading
 from contextlib import contextmanager
 from concurrent.futures import ThreadPoolExecutor
 
-__all__ = ["cores", "set_threads", "threads", "threads_for", "spread", "last_threads", "CHUNK", "LIGHT_CHUNK"]
+__all__ = ["cores", "set_threads", "threads", "threads_for", "spread", "run_all", "last_threads", "CHUNK",
+           "LIGHT_CHUNK"]
 
 CHUNK = 4096  # cells per task on a thread (each task allocates its scratch once)
 _THREADS = 1  # threads the kernel may use (set_threads); chunks of CHUNK cells are spread over them
@@ -42,15 +44,37 @@ def set_threads(n: int) -> int:
     return old
 
 
+def _pool():
+    global _POOL
+    if _POOL is None or _POOL._max_workers != _THREADS:
+        _POOL = ThreadPoolExecutor(max_workers=_THREADS, thread_name_prefix="hexsos-kernel")
+    return _POOL
+
+
+def run_all(calls):
+    """The results of ``calls`` (callables of no argument, each writing only to its own arrays), in their order:
+    on the pool's threads when the kernel may use more than one (functions that release the GIL run at once), else
+    one after the other in the calling thread. The work is the same either way, so the results are too."""
+    if _THREADS <= 1 or len(calls) <= 1:
+        return [c() for c in calls]
+    seen = set()
+
+    def task(c):
+        seen.add(threading.get_ident())
+        return c()
+
+    futures = [_pool().submit(task, c) for c in calls]
+    out = [f.result() for f in futures]
+    last_threads.update(seen)
+    return out
+
+
 def spread(fn, n_ids, args_of, min_chunk=CHUNK):
     """fn(*args_of(start, stop)) over chunks of cells: inline for one thread or a small input, else on a pool,
     each task at least ``min_chunk`` cells (more for a light pass, whose cells take nanoseconds)."""
-    global _POOL
     if _THREADS <= 1 or n_ids <= min_chunk:
         fn(*args_of(0, n_ids))
         return
-    if _POOL is None or _POOL._max_workers != _THREADS:
-        _POOL = ThreadPoolExecutor(max_workers=_THREADS, thread_name_prefix="hexsos-kernel")
     # about four chunks per thread keeps them busy without many tiny tasks
     size = max(min_chunk, -(-n_ids // (4 * _THREADS)))
     seen = set()
@@ -59,7 +83,8 @@ def spread(fn, n_ids, args_of, min_chunk=CHUNK):
         seen.add(threading.get_ident())
         fn(*args_of(start, stop))
 
-    futures = [_POOL.submit(task, s, min(s + size, n_ids)) for s in range(0, n_ids, size)]
+    pool = _pool()
+    futures = [pool.submit(task, s, min(s + size, n_ids)) for s in range(0, n_ids, size)]
     for f in futures:
         f.result()
     last_threads.update(seen)

@@ -343,7 +343,9 @@ def repair(points, hexes, *, cells=None, method: str = "optimize", boundary: str
         After each outer step with its history entry and the current coordinates (read-only); returning True
         stops the repair (the certificate still runs).
     jobs, scheduler : keyword-only
-        For the kernel calls (see :func:`hexsos_plugins.check`).
+        For the kernel calls (see :func:`hexsos_plugins.check`); ``jobs`` threads also run stage 1's energy on
+        blocks of :data:`hexsos_plugins.meshrepair.optimize.UNTANGLE_PARTS_MIN_CELLS` cells and more (the same
+        result whatever their number).
 
     Returns
     -------
@@ -429,9 +431,10 @@ def repair(points, hexes, *, cells=None, method: str = "optimize", boundary: str
                              max_iter=100 if max_iter is None else int(max_iter), kernel_method=kernel_method,
                              relaxation=relaxation, progress=progress, callback=callback, anchor=anchor,
                              max_steps=max_steps, jobs=jobs, scheduler=scheduler)
+    from ..kernel.pool import threads_for
     from .blas import single_thread
 
-    with single_thread():
+    with single_thread(), threads_for(jobs):  # jobs: the kernel's threads, and those of stage 1's large blocks
         return _Optimize(P0, H, others, pin, boundary=boundary, min_sj=min_sj, max_iter=max_iter,
                          time_limit=time_limit, feature_angle=feature_angle, rings=rings, fallback=fallback, rho=rho,
                          margin=margin, relaxation=relaxation, progress=progress, callback=callback, jobs=jobs,

@@ -45,7 +45,7 @@ def _chi(D, e2):
     return chi, chi / r
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def untangle_corners(V, conn, G, s, eps, theta, g, want_grad):
     """Stage 1 over corner samples G (K, n, 3) (ideal-cell corners folded in): returns (energy, min D). Each cell's
     nodes are read once and its gradient summed over its samples before it goes into ``g`` (read and scattered per
