@@ -173,7 +173,7 @@ def _published_meshes(names=None):
         yield os.path.splitext(os.path.basename(rel))[0], read(path)
 
 
-def starts(n, names=None):
+def starts(n, names=None, jobs=0):
     """The default repair on each published mesh from ``n`` starts perturbed by 1e-12 of its diagonal (seeds 1..n):
     the certified minimum scaled Jacobian of each and their median (a change of rounding alone moves a single run's
     minimum by up to 0.08), the least shortest / longest edge of a hex of each, and the farthest boundary vertex
@@ -185,7 +185,7 @@ def starts(n, names=None):
         got, ratio, far = [], [], 0.0
         for seed in range(1, n + 1):
             P = m.points + 1e-12 * diag * np.random.default_rng(seed).standard_normal(m.points.shape)
-            r = repair(P, m.hexes, jobs=0)  # every core, as `hexsos repair`
+            r = repair(P, m.hexes, jobs=jobs)  # 0: every core, as `hexsos repair`
             got.append(r.stats["min_sj_after"] if r.success else float("nan"))
             ratio.append(edge_ratio_summary(r.points, m.hexes)[0])
             far = max(far, r.stats.get("boundary_max_distance", 0.0) / diag)
@@ -199,7 +199,7 @@ def _stage_seconds(st):
     return parts + (f" (+ fallback {st['fallback']:.1f})" if "fallback" in st else "")
 
 
-def perturbed(names=None, amps=(1.5, 3.0)):
+def perturbed(names=None, amps=(1.5, 3.0), jobs=0):
     """The default repair on the published meshes perturbed as HexOpt's stress tests: every interior vertex moved
     by up to ``amp`` edge lengths (:func:`comparison.stress.stress`, seed 0 for 1.5, 1 otherwise)."""
     from comparison.stress import stress
@@ -211,7 +211,7 @@ def perturbed(names=None, amps=(1.5, 3.0)):
         for amp in amps:
             P = stress(m.points, m.hexes, frac=1.0, amp=amp, seed=0 if amp == 1.5 else 1)
             t0 = time.perf_counter()
-            r = repair(P, m.hexes, jobs=0)  # every core, as `hexsos repair`
+            r = repair(P, m.hexes, jobs=jobs)  # 0: every core, as `hexsos repair`
             t = time.perf_counter() - t0
             print(f"| {name} | {len(m.hexes):,} | {amp:g} | "
                   f"{r.stats['invalid_before'] + r.stats['undecided_before']:,} -> "
@@ -268,7 +268,7 @@ PUBLISHED = ["hexalab/rockarm.vtk", "bunny.vtk", "hexalab/cat_2.mesh", "hexalab/
              "hexalab/kitten_with_bifur_3.mesh"]
 
 
-def published(local=False, names=None):
+def published(local=False, names=None, jobs=0):
     """The default repair (``local=True``: ``repair(..., local=True)``) on the published meshes: one row each with
     the counts, the scaled Jacobian before / after, Hausdorff, max move, moved vertices and seconds per stage."""
     from comparison.stress import single_fold
@@ -285,7 +285,7 @@ def published(local=False, names=None):
     for name, m in _published_meshes(names):
         print(f"  {name}: {len(m.hexes)} hexes ...", file=sys.stderr, flush=True)
         t0 = time.perf_counter()
-        res = repair(m.points, m.hexes, local=local, jobs=0)  # every core, as `hexsos repair`
+        res = repair(m.points, m.hexes, local=local, jobs=jobs)  # 0: every core, as `hexsos repair`
         t = time.perf_counter() - t0
         row = _row(name, m.points, m.hexes, [], res.points, m.hexes, t, res.success)
         row.update(stage_seconds=res.stats["stage_seconds"], moved=res.stats["moved_vertices"],
@@ -400,15 +400,17 @@ def main(argv=None):
     ap.add_argument("--perturbed", action="store_true",
                     help="--published: instead, the same meshes with every interior vertex moved by up to 1.5 and 3 "
                          "edge lengths (HexOpt's stress tests)")
+    ap.add_argument("--jobs", type=int, default=0, metavar="N",
+                    help="--published: the repair's threads (default 0: every core, as `hexsos repair`)")
     args = ap.parse_args(argv)
     if args.published and args.perturbed:
-        perturbed(args.mesh)
+        perturbed(args.mesh, jobs=args.jobs)
         return 0
     if args.published and args.starts > 0:
-        starts(args.starts, args.mesh)
+        starts(args.starts, args.mesh, jobs=args.jobs)
         return 0
     if args.published:
-        rows = published(args.local, args.mesh)
+        rows = published(args.local, args.mesh, jobs=args.jobs)
         if args.json:
             with open(args.json, "w") as f:
                 json.dump(rows, f, indent=1, default=float)
