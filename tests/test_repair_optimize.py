@@ -800,3 +800,44 @@ def test_stage_one_on_a_large_block_runs_in_parts_on_threads_with_the_same_numbe
     assert np.allclose(g, g1[prob.free].ravel(), rtol=1e-10, atol=1e-12 * np.abs(g1).max())
     e2, g2 = runs[2]
     assert e2 == e and np.array_equal(g2, g)
+
+
+def test_stage_two_on_a_large_region_runs_in_parts_on_threads_with_the_same_numbers():
+    """Stage 2's barrier on a region of ``BARRIER_PARTS_MIN_CELLS`` cells and more runs in parts on the kernel's
+    threads: with two threads it runs on two, and its energy and gradient are those of one thread bit for bit (each
+    cell writes its own rows); a threshold above the worst cell is infeasible (inf) either way, also when the only
+    infeasible cell lies in the last part."""
+    from hexsos_plugins.kernel import pool
+    from hexsos_plugins.meshrepair import kernels as lo
+    from hexsos_plugins.meshrepair.driver import cell_size
+
+    P, H = structured_grid(17)
+    assert H.shape[0] >= lo.BARRIER_PARTS_MIN_CELLS
+    P = stress(P, H, frac=0.3, amp=0.2, seed=4)
+    prob = op.Problem(P, [("hexahedron", H)], [cell_size(P, "hexahedron", H)], np.ones(len(P), dtype=bool))
+    x = prob.x0()
+    sj = scaled_jacobian(P, H)
+    assert sj.min() > 0
+    worst = int(np.argmin(sj))
+    runs = {}
+    for threads in (1, 2):
+        old = pool.set_threads(threads)
+        pool.last_threads.clear()
+        try:
+            runs[threads] = prob.barrier_energy(x, 0.5 * float(sj.min()))
+            assert prob.barrier_energy(x, 0.5 * float(sj.min() + np.partition(sj, 1)[1]))[0] == np.inf
+        finally:
+            pool.set_threads(old)
+        assert len(pool.last_threads) == (2 if threads == 2 else 0)
+    (e1, g1), (e2, g2) = runs[1], runs[2]
+    assert np.isfinite(e1) and e2 == e1 and np.array_equal(g2, g1)
+    # the worst cell moved to the last part: the parts before it are feasible, the call is not
+    order = np.r_[np.delete(np.arange(H.shape[0]), worst), worst]
+    prob2 = op.Problem(P, [("hexahedron", H[order])], [cell_size(P, "hexahedron", H[order])],
+                       np.ones(len(P), dtype=bool))
+    old = pool.set_threads(2)
+    try:
+        assert prob2.barrier_energy(x, 0.5 * float(sj.min() + np.partition(sj, 1)[1]))[0] == np.inf
+        assert np.isfinite(prob2.barrier_energy(x, 0.5 * float(sj.min()))[0])
+    finally:
+        pool.set_threads(old)

@@ -12,8 +12,10 @@ its untangling's and its whole quality stage's 30 s compiling, and ended at 0.70
 
 from __future__ import annotations
 
+from functools import partial
+
 import numpy as np
-from numba import njit, prange, types
+from numba import njit, types
 
 from ..cells.hexahedron import EDGES
 
@@ -287,19 +289,30 @@ def _hex_grid_grad_local(gl, XU, XV, XW, df, GU, GV, GW):
                 gl[_NODE[p, q, 0], a] -= sw
 
 
-#: below this many cells stage 2's loop runs in the calling thread. Measured on a 1,728-hex grid: 3.0 ms in one
-#: thread, 59 ms on two OpenMP threads with the machine's two cores busy (the workers wait for a core at every
-#: call); the rounds of a repair make thousands of such calls on regions of a few thousand cells
-PARALLEL_MIN_CELLS = 50_000
+#: Stage 2's loop on a region of this many cells and more runs in BARRIER_PARTS parts of consecutive cells on the
+#: kernel's threads (``repair(..., jobs=)``; Python threads of :mod:`hexsos_plugins.kernel.pool`, the loop releases
+#: the GIL); each cell writes its own rows, so the numbers are those of one thread. warrior_graded's rounds call it
+#: 1,700 times on regions of 6,000-12,000 hexes (7.7-12 ms a call in one thread, 16 s of its 22 s of rounds). Not
+#: numba's OpenMP loop: with the machine's 2 cores busy its workers cost 59 ms a call on 1,728 hexes against 3 ms in
+#: one thread (rockarm's quality stage took 205 s instead of 15 s)
+BARRIER_PARTS_MIN_CELLS = 4096
+BARRIER_PARTS = 4
 
 
 def barrier_cells(V, conn, G, factor, t, s, beta, hexes, want_grad, ecell, mcell, okc, gcell):
     """Stage 2's terms per cell: ecell (M,) energy, mcell (M,) min SJ, okc (M,) feasible,
     gcell (M, n, 3) the cell's vertex gradient (when ``want_grad``). Returns whether every cell is feasible; when
-    not, the rows are incomplete (the work stops at the first infeasible cell). Threads for
-    :data:`PARALLEL_MIN_CELLS` cells and more."""
-    f = _barrier_parallel if conn.shape[0] >= PARALLEL_MIN_CELLS else _barrier_serial
-    return f(V, conn, G, factor, t, s, beta, hexes, want_grad, ecell, mcell, okc, gcell)
+    not, the rows are incomplete (the work stops at the first infeasible cell of a part). On the kernel's threads
+    in parts for :data:`BARRIER_PARTS_MIN_CELLS` cells and more."""
+    from ..kernel.pool import run_all, threads
+
+    M = conn.shape[0]
+    if M < BARRIER_PARTS_MIN_CELLS or threads() <= 1:
+        return _barrier_serial(V, conn, G, factor, t, s, beta, hexes, want_grad, ecell, mcell, okc, gcell)
+    cuts = np.linspace(0, M, BARRIER_PARTS + 1).astype(np.int64)
+    return all(run_all([partial(_barrier_serial, V, conn[lo:hi], G, factor, t, s[lo:hi], beta, hexes, want_grad,
+                                ecell[lo:hi], mcell[lo:hi], okc[lo:hi], gcell[lo:hi])
+                        for lo, hi in zip(cuts[:-1], cuts[1:])]))
 
 
 @njit(cache=True)
@@ -320,25 +333,11 @@ def _sample_nonzeros(G, n):
     return nz, gi, gv
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _barrier_serial(V, conn, G, factor, t, s, beta, hexes, want_grad, ecell, mcell, okc, gcell):
     nz, gi, gv = _sample_nonzeros(G, conn.shape[1])
     return _barrier_chunk(V, conn, nz, gi, gv, factor, t, s, beta, hexes, want_grad, ecell, mcell, okc, gcell, 0,
                           conn.shape[0])
-
-
-@njit(cache=True, parallel=True)
-def _barrier_parallel(V, conn, G, factor, t, s, beta, hexes, want_grad, ecell, mcell, okc, gcell):
-    M = conn.shape[0]
-    nz, gi, gv = _sample_nonzeros(G, conn.shape[1])
-    chunk = 256
-    stop = np.zeros(1, dtype=np.int64)  # set by the first infeasible cell: the chunks not yet started skip
-    for ch in prange((M + chunk - 1) // chunk):
-        if stop[0] == 0:
-            if not _barrier_chunk(V, conn, nz, gi, gv, factor, t, s, beta, hexes, want_grad, ecell, mcell, okc,
-                                  gcell, ch * chunk, min(M, (ch + 1) * chunk)):
-                stop[0] = 1
-    return stop[0] == 0
 
 
 @njit(cache=True)
@@ -884,8 +883,8 @@ _f8, _i8, _b1 = types.float64, types.int64, types.boolean
 
 #: The argument types the repair calls each loop with (C-contiguous float64 / int64 arrays, writable: the driver
 #: copies the caller's connectivity, so that a read-only one is not a second type); a call with other types still
-#: works, compiled at that call. ``_barrier_parallel`` (regions of PARALLEL_MIN_CELLS cells and more) is not among
-#: them: it compiles at its first use.
+#: works, compiled at that call (the parts of :func:`barrier_cells` and of stage 1's large blocks are slices of
+#: these arrays: the same types).
 SIGNATURES = {
     "untangle_corners": (_F2, _I2, _F3, _F1, _f8, _f8, _F2, _b1),
     "untangle_bernstein": (_F2, _I2, _I1, types.float64[:, :, :], _F2, _F1, _f8, _f8, _F2, _b1),
