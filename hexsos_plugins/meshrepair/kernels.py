@@ -307,11 +307,12 @@ def barrier_cells(V, conn, G, factor, t, s, beta, hexes, want_grad, ecell, mcell
     from ..kernel.pool import run_all, threads
 
     M = conn.shape[0]
+    stop = np.zeros(1, dtype=np.int64)  # set by the first infeasible cell: every part stops at its next cell
     if M < BARRIER_PARTS_MIN_CELLS or threads() <= 1:
-        return _barrier_serial(V, conn, G, factor, t, s, beta, hexes, want_grad, ecell, mcell, okc, gcell)
+        return _barrier_serial(V, conn, G, factor, t, s, beta, hexes, want_grad, ecell, mcell, okc, gcell, stop)
     cuts = np.linspace(0, M, BARRIER_PARTS + 1).astype(np.int64)
     return all(run_all([partial(_barrier_serial, V, conn[lo:hi], G, factor, t, s[lo:hi], beta, hexes, want_grad,
-                                ecell[lo:hi], mcell[lo:hi], okc[lo:hi], gcell[lo:hi])
+                                ecell[lo:hi], mcell[lo:hi], okc[lo:hi], gcell[lo:hi], stop)
                         for lo, hi in zip(cuts[:-1], cuts[1:])]))
 
 
@@ -334,15 +335,17 @@ def _sample_nonzeros(G, n):
 
 
 @njit(cache=True, nogil=True)
-def _barrier_serial(V, conn, G, factor, t, s, beta, hexes, want_grad, ecell, mcell, okc, gcell):
+def _barrier_serial(V, conn, G, factor, t, s, beta, hexes, want_grad, ecell, mcell, okc, gcell, stop):
     nz, gi, gv = _sample_nonzeros(G, conn.shape[1])
     return _barrier_chunk(V, conn, nz, gi, gv, factor, t, s, beta, hexes, want_grad, ecell, mcell, okc, gcell, 0,
-                          conn.shape[0])
+                          conn.shape[0], stop)
 
 
 @njit(cache=True)
-def _barrier_chunk(V, conn, nz, gi, gv, factor, t, s, beta, hexes, want_grad, ecell, mcell, okc, gcell, lo, hi):
-    """Cells lo..hi-1 of :func:`barrier_cells` (its scratch arrays allocated once per chunk)."""
+def _barrier_chunk(V, conn, nz, gi, gv, factor, t, s, beta, hexes, want_grad, ecell, mcell, okc, gcell, lo, hi,
+                   stop):
+    """Cells lo..hi-1 of :func:`barrier_cells` (its scratch arrays allocated once per chunk); stops at the first
+    infeasible cell, its own (setting ``stop[0]``) or another part's (``stop[0]`` set)."""
     K = nz.shape[0]
     n = conn.shape[1]
     X = np.empty((n, 3))
@@ -362,6 +365,8 @@ def _barrier_chunk(V, conn, nz, gi, gv, factor, t, s, beta, hexes, want_grad, ec
     b = np.empty(27)
     db = np.empty(27)
     for m in range(lo, hi):
+        if stop[0] != 0:
+            return False
         gl[:] = 0.0
         for i in range(n):
             v = conn[m, i]
@@ -445,6 +450,7 @@ def _barrier_chunk(V, conn, nz, gi, gv, factor, t, s, beta, hexes, want_grad, ec
         mcell[m] = smin
         okc[m] = ok
         if not ok:
+            stop[0] = 1
             return False
         if want_grad:
             for i in range(n):
@@ -888,7 +894,7 @@ _f8, _i8, _b1 = types.float64, types.int64, types.boolean
 SIGNATURES = {
     "untangle_corners": (_F2, _I2, _F3, _F1, _f8, _f8, _F2, _b1),
     "untangle_bernstein": (_F2, _I2, _I1, types.float64[:, :, :], _F2, _F1, _f8, _f8, _F2, _b1),
-    "_barrier_serial": (_F2, _I2, _F3, _f8, _f8, _F1, _f8, _b1, _b1, _F1, _F1, types.boolean[::1], _F3),
+    "_barrier_serial": (_F2, _I2, _F3, _f8, _f8, _F1, _f8, _b1, _b1, _F1, _F1, types.boolean[::1], _F3, _I1),
     "hex_bernstein": (_F2, _I2),
     "hex_edge_term": (_F2, _I2, _F1, _f8, _F2),
     "scatter_cells": (_F2, _I2, _F3),
