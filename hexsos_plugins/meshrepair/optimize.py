@@ -41,7 +41,7 @@ stage 2 the boundary vertices are projected onto the input surface (:mod:`hexsos
 as it can go with every cell still feasible.
 
 The energies and their analytic gradients run in the compiled loops of :mod:`hexsos_plugins.meshrepair.kernels`
-(numba, IEEE double precision, no fast-math; stage 2's over the cells, in parallel from 50,000 cells), their one
+(numba, IEEE double precision, no fast-math; on large blocks in parts on the kernel's threads), their one
 implementation: tested against finite differences and against closed forms on the ideal cube. The measures of
 the current coordinates (corner determinants, scaled Jacobian samples, Bernstein coefficients) are numpy.
 """
