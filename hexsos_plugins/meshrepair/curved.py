@@ -910,7 +910,8 @@ def repair_curved(points, cells, *, boundary: str = "slide", min_sj=None, max_it
         "boundary_vertices": int((bnd.kind >= 0).sum()) if bnd is not None else None,
         "feature_edges": bnd.feature_edges if bnd is not None else None,
         "stage_seconds": stage_s, "seconds": time.perf_counter() - t0, "load_seconds": t0 - t_load,
-        "success": ok, "message": message, "other_cells": 0, "by_type": res.by_type() if hasattr(res, "by_type") else None,
+        "success": ok, "message": message, "other_cells": 0,
+        "by_type": res.by_type() if hasattr(res, "by_type") else None,
     }
     if bnd is not None and slide:
         bn = bnd.nodes
