@@ -4,6 +4,7 @@ and Gmsh's own untangler, on generated meshes and the paper's bunny.
     python -m comparison.bench_repair [--quick] [--no-gmsh] [--json OUT.json] [--samples] [--table1]
     python -m comparison.bench_repair --published [--local] [--mesh REL ...] [--json OUT.json]
     python -m comparison.bench_repair --published --starts N [--mesh REL ...]
+    python -m comparison.bench_repair --subdivided [--jobs N]
 
 ``--published``: the default repair on the published meshes of ``../shared/data`` (the seven HexaLab meshes and the
 bunny, read in place): before / after (cells not proven valid, scaled Jacobian min / p1 / mean), Hausdorff, max
@@ -20,6 +21,10 @@ percentile, mean) before / after, the Hausdorff distance of the boundary to the 
 bounding-box diagonal), the largest vertex move (% of the diagonal), seconds. Gmsh 4.15's
 ``optimize("UntangleMeshGeometry", force=True)`` runs on a discrete model (boundary quads as a discrete
 surface, kept fixed), on meshes up to ``--gmsh-max-hexes``, its result checked by our kernel.
+
+``--subdivided``: the default repair on Gmsh's all-hex meshes of CAD solids (tetrahedra split into hexes, singular
+edges everywhere; :func:`comparison.stress.subdivided_solid`) with a share of their boundary vertices slid along the
+surface (:func:`comparison.stress.slide_boundary`): boundary hexes folded as a pipeline's projection folds them.
 
 ``--samples`` measures stage 1's sample points (corners only, corners + the Bernstein coefficients of the hexes
 that need them -- the default --, corners + every hex's coefficients) on stress tests. ``--table1`` prints the
@@ -221,6 +226,40 @@ def perturbed(names=None, amps=(1.5, 3.0), jobs=0):
                   flush=True)
 
 
+#: ``--subdivided``'s cases: (solid, largest tetrahedron edge, share of the boundary vertices slid, by how many edge
+#: lengths, seed)
+SUBDIVIDED = (("sphere", 0.25, 0.1, 0.8, 0), ("cone", 0.15, 0.2, 1.2, 3), ("holed_box", 0.12, 0.1, 0.8, 2),
+              ("torus", 0.12, 0.1, 0.8, 1), ("torus", 0.08, 0.3, 1.5, 6))
+
+
+def subdivided(cases=SUBDIVIDED, jobs=0):
+    """The default repair on the :data:`SUBDIVIDED` cases (module docstring), one line of the README's table each."""
+    from comparison.stress import slide_boundary, subdivided_solid
+
+    print("| solid (largest tet edge) | hexes | boundary vertices slid (by, edge lengths) | not valid before -> after | "
+          "certified | SJ before sliding -> slid, min | SJ after min / p1 / mean | Hausdorff (of diag) | "
+          "farthest boundary vertex (of diag) | shortest / longest edge, least | seconds: untangle / quality / "
+          "vertex steps / joint steps / certify / total |\n|---|---|---|---|---|---|---|---|---|---|---|")
+    for shape, size, frac, amp, seed in cases:
+        P0, H = subdivided_solid(shape, size)
+        P = slide_boundary(P0, H, frac=frac, amp=amp, seed=seed)
+        t0 = time.perf_counter()
+        r = repair(P, H, jobs=jobs)  # 0: every core, as `hexsos repair`
+        t = time.perf_counter() - t0
+        st = r.stats
+        diag = float(np.linalg.norm(P.max(axis=0) - P.min(axis=0)))
+        f = _fid(P, r.points, H, [])
+        haus = "n/a" if f is None else f"{100 * f['hausdorff_max'] / diag:.2f}%"
+        sj0 = float(scaled_jacobian(P0, [("hexahedron", H)]).min())
+        print(f"| {shape} ({size:g}) | {len(H):,} | {100 * frac:g}% ({amp:g}) | "
+              f"{st['invalid_before'] + st['undecided_before']:,} -> {st['invalid_after'] + st['undecided_after']:,} | "
+              f"{'yes' if r.success else 'NO'} | {sj0:.3f} -> {st['min_sj_before']:.3f} | "
+              f"{st['min_sj_after']:.3f} / {st['p1_sj_after']:.3f} / {st['mean_sj_after']:.3f} | "
+              f"{haus} | "
+              f"{100 * st.get('boundary_max_distance', 0.0) / diag:.2f}% | {st['edge_ratio_after']:.4f} | "
+              f"{_stage_seconds(st['stage_seconds'])} / {t:.1f} |", flush=True)
+
+
 def _fid(P, Q, H, cells):
     """pymeshlab's boundary fidelity (:func:`boundary_fidelity`), None without pymeshlab."""
     try:
@@ -402,7 +441,12 @@ def main(argv=None):
                          "edge lengths (HexOpt's stress tests)")
     ap.add_argument("--jobs", type=int, default=0, metavar="N",
                     help="--published: the repair's threads (default 0: every core, as `hexsos repair`)")
+    ap.add_argument("--subdivided", action="store_true",
+                    help="instead, Gmsh's all-hex meshes of CAD solids with slid boundary vertices (module docstring)")
     args = ap.parse_args(argv)
+    if args.subdivided:
+        subdivided(jobs=args.jobs)
+        return 0
     if args.published and args.perturbed:
         perturbed(args.mesh, jobs=args.jobs)
         return 0

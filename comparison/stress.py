@@ -11,6 +11,12 @@ Every mesh here is generated (Gmsh through its Python API, numpy), seeded; none 
   hex stays positive at all 8 corners but folds inside, and every other hex stays valid.
 * :func:`hex_prism_block` -- an extruded square split into a quad half (hexahedra) and a
   triangle half (prisms) sharing nodes, interior nodes near the interface moved by up to ``amp`` (seeded).
+* :func:`subdivided_solid` -- a CAD solid (OpenCASCADE through Gmsh) meshed with tetrahedra, each split into four
+  hexes by Gmsh (``Mesh.SubdivisionAlgorithm`` 2): an unstructured all-hex mesh with singular edges everywhere,
+  most boundary vertices on curved faces and feature curves.
+* :func:`slide_boundary` -- a fraction of the *boundary* vertices slid along the boundary surface (each to the
+  surface's nearest point to a point ``amp`` edge lengths away in a random direction): the boundary hexes fold
+  where a meshing pipeline's projection onto the surface folds them, and the surface stays the same.
 """
 
 from __future__ import annotations
@@ -20,7 +26,11 @@ import numpy as np
 from gmsh_plugin.model import model_cells
 from hexsos_plugins.examples import gmsh_model
 
-__all__ = ["graded_solid", "stress", "single_fold", "hex_prism_block"]
+__all__ = ["graded_solid", "stress", "single_fold", "hex_prism_block", "subdivided_solid", "slide_boundary",
+           "SOLIDS"]
+
+#: The solids of :func:`subdivided_solid`
+SOLIDS = ("sphere", "torus", "holed_box", "cone")
 
 
 def graded_solid(n: int = 8, *, progression: float = 1.15):
@@ -139,3 +149,54 @@ def hex_prism_block(n: int = 6, *, amp: float = 0.2, seed: int = 0, layers: int 
     P = P.copy()
     P[inner] += amp * d
     return P, [("hexahedron", H), ("wedge", W)]
+
+
+def subdivided_solid(shape: str = "sphere", size: float = 0.25):
+    """Points and hexes of a solid of :data:`SOLIDS` meshed with tetrahedra of edge length up to ``size`` and each
+    split into four hexes by Gmsh (see the module docstring): a sphere of radius 1, a torus (radii 1 and 0.4), a
+    2 x 1 x 1 box with a cylindrical hole of radius 0.3 through it, a cone (radii 1 and 0.2, height 1.5)."""
+    from hexsos_plugins.errors import InvalidInputError
+
+    if shape not in SOLIDS:
+        raise InvalidInputError(f"shape: expected one of {', '.join(SOLIDS)}, found {shape!r}")
+    with gmsh_model(f"hexsos-{shape}") as gmsh:
+        o = gmsh.model.occ
+        if shape == "sphere":
+            o.addSphere(0, 0, 0, 1)
+        elif shape == "torus":
+            o.addTorus(0, 0, 0, 1, 0.4)
+        elif shape == "holed_box":
+            box = o.addBox(0, 0, 0, 2, 1, 1)
+            hole = o.addCylinder(1, 0.5, -0.1, 0, 0, 1.2, 0.3)
+            o.cut([(3, box)], [(3, hole)])
+        else:
+            o.addCone(0, 0, 0, 0, 0, 1.5, 1, 0.2)
+        o.synchronize()
+        gmsh.option.setNumber("Mesh.MeshSizeMax", float(size))
+        gmsh.option.setNumber("Mesh.SubdivisionAlgorithm", 2)
+        gmsh.model.mesh.generate(3)
+        mc = model_cells()
+    H = dict(mc.cells)["hexahedron"]
+    used, H = np.unique(H, return_inverse=True)  # the points of the hexes only (Gmsh keeps the geometry's nodes)
+    return np.ascontiguousarray(mc.points[used]), H.reshape(-1, 8)
+
+
+def slide_boundary(P, H, *, frac: float = 0.1, amp: float = 0.8, seed: int = 0):
+    """A copy of P with ``frac`` of the boundary vertices slid along the boundary surface by about ``amp`` x the
+    mean boundary edge length (see the module docstring; libigl's point-mesh distance)."""
+    import igl
+
+    from hexsos_plugins.meshrepair.fidelity import boundary_quads
+
+    P = np.array(P, dtype=np.float64, copy=True)
+    q = boundary_quads(H)
+    tris = np.ascontiguousarray(np.concatenate([q[:, [0, 1, 2]], q[:, [0, 2, 3]]]), dtype=np.int64)
+    b = np.unique(q)
+    h = float(np.linalg.norm(P[q[:, 1]] - P[q[:, 0]], axis=1).mean())
+    rng = np.random.default_rng(seed)
+    pick = rng.choice(b, size=max(1, int(round(frac * b.size))), replace=False)
+    d = rng.standard_normal((pick.size, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    _, _, C = igl.point_mesh_squared_distance(P[pick] + amp * h * d, P, tris)
+    P[pick] = C
+    return P

@@ -187,3 +187,94 @@ def test_cli_local_reports_the_region_and_moved_vertices(tmp_path):
     moved = int(np.any(Q != P, axis=1).sum())
     assert 0 < moved < len(P)
     assert f"over {moved} moved vertices of {len(P)}" in p.stdout and "local: only the" in p.stdout
+
+
+@pytest.fixture(scope="module")
+def folded_torus():
+    """A torus meshed with tetrahedra split into hexes by Gmsh (singular edges everywhere), a fifth of its boundary
+    vertices slid an edge length along its surface: 234 of 1,296 hexes not valid, the boundary folded."""
+    from comparison.stress import slide_boundary, subdivided_solid
+
+    P, H = subdivided_solid("torus", 0.5)
+    assert not _not_valid(P, H).size
+    Q = slide_boundary(P, H, frac=0.2, amp=1.0, seed=1)
+    assert _not_valid(Q, H).size > 100
+    return Q, H
+
+
+def test_slid_boundary_vertices_stay_on_the_surface_and_the_interior_stays(folded_torus):
+    from comparison.stress import subdivided_solid
+    from hexsos_plugins.meshrepair.fidelity import boundary_quads
+
+    P0, H = subdivided_solid("torus", 0.5)
+    Q, _ = folded_torus
+    b = np.unique(boundary_quads(H))
+    moved = np.flatnonzero(np.any(Q != P0, axis=1))
+    assert moved.size and np.isin(moved, b).all()  # only boundary vertices move
+    assert 0.15 * b.size < moved.size <= 0.2 * b.size + 1
+    # each onto the input's surface (its quads split into triangles), away from where it was
+    import igl
+
+    q = boundary_quads(H)
+    tris = np.concatenate([q[:, [0, 1, 2]], q[:, [0, 2, 3]]]).astype(np.int64)
+    d2, _, _ = igl.point_mesh_squared_distance(Q[moved], P0, tris)
+    diag = np.linalg.norm(P0.max(axis=0) - P0.min(axis=0))
+    assert np.sqrt(d2.max()) < 1e-9 * diag
+    assert np.median(np.linalg.norm(Q[moved] - P0[moved], axis=1)) > 0.01 * diag
+    with pytest.raises(InvalidInputError, match="sphere"):
+        subdivided_solid("cube")
+
+
+def test_an_untangling_out_of_time_hands_over_to_algorithm_2_and_the_quality_stages_go_on(folded_torus, monkeypatch):
+    from hexsos_plugins.meshrepair import driver
+
+    P, H = folded_torus
+    for name, value in (("QUALITY_SECONDS", 3.0), ("LOCAL_SECONDS", 1.0), ("JOINT_SECONDS", 1.0)):
+        monkeypatch.setattr(driver, name, value)
+    monkeypatch.setattr(driver, "UNTANGLE_SECONDS", 1e-3)  # the barrier stops at once, tangled
+    r = hs.repair(P, H)
+    stages = [e["stage"] for e in r.history]
+    assert r.success and r.stats["fallback_used"] and r.stats["untangled"]
+    assert not _not_valid(r.points, H).size
+    # Algorithm 2 ran before the quality stages, which went on from its mesh: its own result sits near 0.001
+    first = stages.index("fallback (paper)")
+    assert first < stages.index("local") and stages.count("fallback (paper)") == 1
+    assert r.history[first]["min_sj"] < 0.05 < 0.25 < r.stats["min_sj_after"]
+    assert r.stats["stage_seconds"]["fallback"] > 0
+    # without Algorithm 2 the untangling's mesh is handed back, not valid, and says why
+    r2 = hs.repair(P, H, fallback=False)
+    assert not r2.success and _not_valid(r2.points, H).size and "did not finish" in r2.message
+
+
+def test_a_folded_boundary_of_a_subdivided_solid_is_repaired_near_its_surface(folded_torus):
+    P, H = folded_torus
+    r = hs.repair(P, H, time_limit=8)
+    assert r.success and not _not_valid(r.points, H).size
+    assert r.stats["min_sj_after"] > 0.3 and r.stats["edge_ratio_after"] >= 0.05
+    assert r.stats["boundary_max_distance"] <= 0.02 * np.linalg.norm(P.max(axis=0) - P.min(axis=0))
+
+
+def test_algorithm_2s_hexes_with_a_negative_bernstein_coefficient_are_lifted_before_the_quality_stages(monkeypatch):
+    from hexsos_plugins.examples import twisted_hex
+    from hexsos_plugins.meshrepair import driver
+
+    H = np.arange(8)[None]
+    X = twisted_hex(2.6) + np.random.default_rng(0).normal(0.0, 0.25, (8, 3))
+    assert _not_valid(X, H).size == 1
+    for name, value in (("UNTANGLE_SECONDS", 1e-3), ("QUALITY_SECONDS", 2.0), ("LOCAL_SECONDS", 1.0),
+                        ("JOINT_SECONDS", 1.0)):
+        monkeypatch.setattr(driver, name, value)
+    # the paper's Algorithm 2 alone proves this hex valid with a Bernstein coefficient of det J below 0
+    alone = hs.repair(X, H, method="paper", boundary="free")
+    assert alone.success and not _not_valid(alone.points, H).size
+    prob = op.Problem(alone.points, [("hexahedron", H)], [np.array([1.0])], np.ones(8, dtype=bool))
+    assert prob.bernstein(alone.points)[0].min() < 0
+    r = hs.repair(X, H, boundary="free")
+    stages = [e["stage"] for e in r.history]
+    assert r.success and r.stats["untangled"] and r.stats["fallback_used"]
+    assert "fallback (paper)" in stages and "local" in stages[stages.index("fallback (paper)"):]
+    assert r.stats["min_sj_after"] > 0.9 and not _not_valid(r.points, H).size
+    # without the vertex steps' lift the quality stages do not start from Algorithm 2's mesh
+    monkeypatch.setattr(driver, "PAPER_LIFT_SECONDS", 0.0)
+    r0 = hs.repair(X, H, boundary="free")
+    assert not r0.stats["untangled"] and "local" not in [e["stage"] for e in r0.history]

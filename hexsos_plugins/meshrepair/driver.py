@@ -23,7 +23,9 @@
 3. **certify**: :func:`hexsos_plugins.check` on every hex (the kernel's proof over the whole element) and a
    check of every other 3-D cell (:func:`check_cells`). A mesh is reported repaired only when every cell is
    proven valid. If not, the paper's Algorithm 2 (:func:`hexsos_plugins.meshrepair.paper.repair_paper`) runs on
-   what is left, and the better of the two (certified, else fewer cells not proven valid) is returned.
+   what is left, and the better of the two (certified, else fewer cells not proven valid) is returned. An
+   untangling that does not finish hands over to Algorithm 2 at once: where it proves every cell valid, stage 2
+   goes on from its mesh.
 
 Boundary: ``"slide"`` (default) keeps boundary vertices on the input's boundary surface, feature-edge vertices
 on their feature curves and pins feature corners (:mod:`hexsos_plugins.meshrepair.boundary`), each within a band
@@ -90,6 +92,10 @@ JOINT_SECONDS = 10.0
 #: Seconds for stage 1 without a time limit: an untangling not done by then does not finish (kitten_with_bifur_3's
 #: barrier went on 456 s with more cells inverted than it started with); the paper's Algorithm 2 takes over
 UNTANGLE_SECONDS = 60.0
+#: After an untangling that did not finish, the paper's Algorithm 2 takes what it left; where it proves every hex
+#: valid but some have a Bernstein coefficient <= 0, vertex steps have this long to raise them before the quality
+#: stages go on
+PAPER_LIFT_SECONDS = 5.0
 PRE_STEPS = True
 #: stage 2's rounds between two passes of vertex steps
 CHUNK_ROUNDS = 10
@@ -326,7 +332,8 @@ def repair(points, hexes, *, cells=None, method: str = "optimize", boundary: str
     rings : int, keyword-only
         Layers of cells around the bad ones that move (default 2).
     fallback : bool, keyword-only
-        Run the paper's Algorithm 2 when the optimizer ends without a certificate. Default True.
+        Run the paper's Algorithm 2 when the untangling does not finish (the quality stages then go on from its
+        mesh where it proves every cell valid) and when the optimizer ends without a certificate. Default True.
     rho, margin, anchor, max_steps, kernel_method, relaxation : keyword-only
         The paper's repair's parameters (:func:`hexsos_plugins.meshrepair.paper.repair_paper`; ``kernel_method``
         is its ``method``).
@@ -698,6 +705,20 @@ class _Optimize:
             self.stopped = True
             raise _Stopped
 
+    def _paper(self, V, pin, stage_s):
+        """The paper's Algorithm 2 from V (nodes of non-hex cells pinned): (W, hex result, others' results,
+        every cell proven valid); its seconds add to ``stage_s["fallback"]``."""
+        ts = time.perf_counter()
+        fpin = pin.copy()
+        for _, conn in self.others:
+            fpin[conn.ravel()] = True
+        res = repair_paper(V, self.H, rho=self.rho, margin=self.margin, max_iter=100, relaxation=self.relaxation,
+                           pinned=fpin if fpin.any() else None, jobs=self.jobs, scheduler=self.scheduler)
+        rf, of = self._check(res.points)
+        okf = bool((rf.status == 1).all()) and _other_counts(of) == 0
+        stage_s["fallback"] = stage_s.get("fallback", 0.0) + time.perf_counter() - ts
+        return res.points, rf, of, okf
+
     def run(self) -> RepairResult:
         from . import optimize as opt
         from .localopt import RATIO_FLOOR
@@ -758,6 +779,8 @@ class _Optimize:
         info1 = {"success": True, "outer": 0, "iterations": 0}
         info2 = {"rounds": 0, "iterations": 0, "reached": False}
         untangled = True
+        paper = None  # the paper's Algorithm 2's result, once it ran
+        used_fallback = False
         slide = self.boundary == "slide"
         try:
             # stage 1: untangle the bad cells and a few rings around them
@@ -817,6 +840,24 @@ class _Optimize:
                 else:
                     rings = rings * 2
                 bad = opt.Problem(V, blocks, sizes, np.ones(N, dtype=bool)).bad_cells(V)
+            if not untangled and self.fallback and not self.stopped:
+                # the untangling ran out of time or rings: the paper's Algorithm 2 on what it left (the 117,396-hex
+                # torus with 30% of its boundary vertices slid 1.5 edge lengths: 60 s of barrier left it tangled,
+                # Algorithm 2 certified it in 1.8 s); certified with every Bernstein coefficient positive, the
+                # quality stages go on from there (before, the repair ended at its min scaled Jacobian 0.000)
+                paper = W, rf, of, okf = self._paper(V, pin, stage_s)
+                if okf and len(blocks) == 1 and not full.feasible_valid(W):
+                    # its hexes are proven valid, some with a Bernstein coefficient <= 0 (a bound, not the
+                    # minimum): vertex steps raise those without taking any hex below its own
+                    from .localopt import local_untangle
+
+                    W2, _ = local_untangle(W, H, sizes1[0], movable, boundary=bm if slide else None,
+                                           deadline=time.perf_counter() + PAPER_LIFT_SECONDS)
+                    if full.feasible_valid(W2):
+                        W = W2
+                if okf and full.feasible_valid(W):
+                    V, untangled, used_fallback = W, True, True
+                    self.history.append(self._entry("fallback (paper)", V, rf, of, stage_s["fallback"]))
             info1["success"] = untangled
             if slide and untangled and np.any(V != P0):
                 # back onto the input surface, each vertex as far as it goes with every cell still valid
@@ -824,7 +865,7 @@ class _Optimize:
                 if moved_b.size:
                     prob = opt.Problem(V, blocks, sizes, np.isin(np.arange(N), moved_b))
                     V = opt.project_valid(prob, V, bm.project(V, moved_b), moved_b)
-            stage_s["untangle"] = time.perf_counter() - ts
+            stage_s["untangle"] = time.perf_counter() - ts - stage_s.get("fallback", 0.0)
             # stage 2: raise the minimum scaled Jacobian of the cells below a threshold and their neighbours
             ts = time.perf_counter()
             deadline = deadline1 = deadline0  # the caller's; without one stage 2 has QUALITY_SECONDS
@@ -928,7 +969,6 @@ class _Optimize:
         r, o = self._check(V)
         ok = bool((r.status == 1).all()) and _other_counts(o) == 0
         stage_s["certify"] = time.perf_counter() - ts
-        used_fallback = False
         if not ok and not self.stopped:
             # the best mesh seen may beat the last one
             cand = self.best[1]
@@ -938,20 +978,12 @@ class _Optimize:
                 if okc or (int((rc.status != 1).sum()) + _other_counts(oc) < int((r.status != 1).sum()) + _other_counts(o)):
                     V, r, o, ok = cand, rc, oc, okc
         if not ok and self.fallback and not self.stopped:
-            ts = time.perf_counter()
-            fpin = pin.copy()
-            for _, conn in others:
-                fpin[conn.ravel()] = True
-            res = repair_paper(V, H, rho=self.rho, margin=self.margin, max_iter=100, relaxation=self.relaxation,
-                               pinned=fpin if fpin.any() else None, jobs=self.jobs, scheduler=self.scheduler)
-            rf, of = self._check(res.points)
-            okf = bool((rf.status == 1).all()) and _other_counts(of) == 0
+            W, rf, of, okf = paper if paper is not None else self._paper(V, pin, stage_s)
             nbad = int((r.status != 1).sum()) + _other_counts(o)
             if okf or int((rf.status != 1).sum()) + _other_counts(of) < nbad:
-                V, r, o, ok = res.points, rf, of, okf
+                V, r, o, ok = W, rf, of, okf
                 used_fallback = True
-                self.history.append(self._entry("fallback (paper)", V, r, o, time.perf_counter() - ts))
-            stage_s["fallback"] = time.perf_counter() - ts
+                self.history.append(self._entry("fallback (paper)", V, r, o, stage_s["fallback"]))
         if self.progress is not None:
             self.progress(self.bad0, self.bad0)
 
