@@ -172,3 +172,25 @@ def test_rows_that_cannot_bind_leave_the_program_as_it_was():
         loose = ~(b >= need)  # ties left out too
         wrong = linprog(cost, A_ub=Afull[loose], b_ub=b[loose], bounds=bounds, method="highs-ipm")
         assert wrong.status == 0 and wrong.x[-1] > 1.5 * b[0], (trial, wrong.x[-1], b[0])
+
+
+def test_a_part_of_a_refused_step_is_kept_and_the_same_programs_reach_higher(monkeypatch):
+    """On the cubed ball where the vertex steps stall, whole steps of the programs' moves are refused (their minimum
+    falls at second order); half or a quarter of them is kept, so the same number of programs reaches higher than
+    with whole steps alone (0.927 against 0.921 after 20)."""
+    from hexsos_plugins.meshrepair import jointsteps
+
+    Q, H = cubed_ball(3)
+    bm = boundary_model(Q, [("hexahedron", H)], tolerance=SURFACE_TOLERANCE)
+    mv = np.ones(len(Q), dtype=bool)
+    W = Q
+    for _ in range(3):
+        W, _ = localopt.local_sweeps(W, H, mv, boundary=bm, band_below=np.inf, patience=20)
+    J, info = joint_steps(W, H, mv, boundary=bm, max_tries=20)
+    monkeypatch.setattr(jointsteps, "STEP_PARTS", (1.0,))
+    J1, whole = joint_steps(W, H, mv, boundary=bm, max_tries=20)
+    assert info["tries"] == whole["tries"] == 20 and whole["part_steps"] == 0
+    assert 0 < info["part_steps"] < info["steps"] and info["steps"] > whole["steps"]
+    assert info["min_after"] > whole["min_after"] + 0.003, (info, whole)
+    assert sample_scaled_jacobians(J[H], "hexahedron").min() == pytest.approx(info["min_after"], abs=1e-12)
+    assert _certified(J, H)
