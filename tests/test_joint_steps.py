@@ -63,18 +63,25 @@ def test_the_low_coefficients_gradients_are_the_full_ones_at_those_coefficients(
         assert np.allclose(dbl, db[hh, pp], rtol=1e-12, atol=1e-12 * np.abs(db).max())
 
 
-def test_joint_steps_lift_where_the_vertex_steps_stop():
-    """A 3^3 cubed ball with its band: the vertex steps stop at 0.855 (20 sweeps more gain nothing: each vertex alone
-    cannot move without lowering a neighbour); the joint steps from there reach 0.89, valid, every boundary vertex
-    within the band (or no farther off than it was), no hex's edge ratio below its floor. Without a boundary model
-    the same steps take the boundary vertices off the sphere by more than twice the band: the band is what holds
-    them."""
+def _stalled_ball():
+    """A 3^3 cubed ball after the vertex steps with its band, where they stall: (V, hexes, boundary model, movable,
+    the last vertex steps' info)."""
     Q, H = cubed_ball(3)
     bm = boundary_model(Q, [("hexahedron", H)], tolerance=SURFACE_TOLERANCE)
     mv = np.ones(len(Q), dtype=bool)
     W = Q
     for _ in range(3):
         W, info = localopt.local_sweeps(W, H, mv, boundary=bm, band_below=np.inf, patience=20)
+    return W, H, bm, mv, info
+
+
+def test_joint_steps_lift_where_the_vertex_steps_stop():
+    """A 3^3 cubed ball with its band: the vertex steps stop at 0.855 (20 sweeps more gain nothing: each vertex alone
+    cannot move without lowering a neighbour); the joint steps from there reach 0.89, valid, every boundary vertex
+    within the band (or no farther off than it was), no hex's edge ratio below its floor. Without a boundary model
+    the same steps take the boundary vertices off the sphere by more than twice the band: the band is what holds
+    them."""
+    W, H, bm, mv, info = _stalled_ball()
     assert info["min_after"] == info["min_before"]  # stalled
     J, jinfo = joint_steps(W, H, mv, boundary=bm)
     sj = sample_scaled_jacobians(J[H], "hexahedron").min()
@@ -180,12 +187,7 @@ def test_a_part_of_a_refused_step_is_kept_and_the_same_programs_reach_higher(mon
     with whole steps alone (0.927 against 0.921 after 20)."""
     from hexsos_plugins.meshrepair import jointsteps
 
-    Q, H = cubed_ball(3)
-    bm = boundary_model(Q, [("hexahedron", H)], tolerance=SURFACE_TOLERANCE)
-    mv = np.ones(len(Q), dtype=bool)
-    W = Q
-    for _ in range(3):
-        W, _ = localopt.local_sweeps(W, H, mv, boundary=bm, band_below=np.inf, patience=20)
+    W, H, bm, mv, _ = _stalled_ball()
     J, info = joint_steps(W, H, mv, boundary=bm, max_tries=20)
     monkeypatch.setattr(jointsteps, "STEP_PARTS", (1.0,))
     J1, whole = joint_steps(W, H, mv, boundary=bm, max_tries=20)
