@@ -337,15 +337,13 @@ def _sample_nonzeros(G, n):
 @njit(cache=True, nogil=True)
 def _barrier_serial(V, conn, G, factor, t, s, beta, hexes, want_grad, ecell, mcell, okc, gcell, stop):
     nz, gi, gv = _sample_nonzeros(G, conn.shape[1])
-    return _barrier_chunk(V, conn, nz, gi, gv, factor, t, s, beta, hexes, want_grad, ecell, mcell, okc, gcell, 0,
-                          conn.shape[0], stop)
+    return _barrier_chunk(V, conn, nz, gi, gv, factor, t, s, beta, hexes, want_grad, ecell, mcell, okc, gcell, stop)
 
 
 @njit(cache=True)
-def _barrier_chunk(V, conn, nz, gi, gv, factor, t, s, beta, hexes, want_grad, ecell, mcell, okc, gcell, lo, hi,
-                   stop):
-    """Cells lo..hi-1 of :func:`barrier_cells` (its scratch arrays allocated once per chunk); stops at the first
-    infeasible cell, its own (setting ``stop[0]``) or another part's (``stop[0]`` set)."""
+def _barrier_chunk(V, conn, nz, gi, gv, factor, t, s, beta, hexes, want_grad, ecell, mcell, okc, gcell, stop):
+    """The cells of one part of :func:`barrier_cells` (its scratch arrays allocated once per part); stops at the
+    first infeasible cell, its own (setting ``stop[0]``) or another part's (``stop[0]`` set)."""
     K = nz.shape[0]
     n = conn.shape[1]
     X = np.empty((n, 3))
@@ -364,7 +362,7 @@ def _barrier_chunk(V, conn, nz, gi, gv, factor, t, s, beta, hexes, want_grad, ec
     ew = np.empty((2, 2, 3))
     b = np.empty(27)
     db = np.empty(27)
-    for m in range(lo, hi):
+    for m in range(conn.shape[0]):
         if stop[0] != 0:
             return False
         gl[:] = 0.0
