@@ -846,16 +846,18 @@ class _Optimize:
                 # Algorithm 2 certified it in 1.8 s); certified with every Bernstein coefficient positive, the
                 # quality stages go on from there (before, the repair ended at its min scaled Jacobian 0.000)
                 paper = W, rf, of, okf = self._paper(V, pin, stage_s)
-                if okf and len(blocks) == 1 and not full.feasible_valid(W):
+                feasible = okf and full.feasible_valid(W)
+                if okf and not feasible and len(blocks) == 1:
                     # its hexes are proven valid, some with a Bernstein coefficient <= 0 (a bound, not the
                     # minimum): vertex steps raise those without taking any hex below its own
                     from .localopt import local_untangle
 
                     W2, _ = local_untangle(W, H, sizes1[0], movable, boundary=bm if slide else None,
                                            deadline=time.perf_counter() + PAPER_LIFT_SECONDS)
-                    if full.feasible_valid(W2):
+                    feasible = full.feasible_valid(W2)
+                    if feasible:
                         W = W2
-                if okf and full.feasible_valid(W):
+                if feasible:
                     V, untangled, used_fallback = W, True, True
                     self.history.append(self._entry("fallback (paper)", V, rf, of, stage_s["fallback"]))
             info1["success"] = untangled
