@@ -841,3 +841,69 @@ def test_stage_two_on_a_large_region_runs_in_parts_on_threads_with_the_same_numb
         assert np.isfinite(prob2.barrier_energy(x, 0.5 * float(sj.min()))[0])
     finally:
         pool.set_threads(old)
+
+
+def test_the_energies_on_the_regions_numbering_equal_those_on_the_meshs_to_the_bit():
+    """Problem's energies run on the region's vertices numbered apart (:attr:`Problem.used`, ``lconn``); each must
+    give the energy and gradient the compiled loops give on the mesh's own numbering, to the bit: a region in a
+    perturbed graded solid, its boundary sliding, a few of its hexes folded (stage 1) and from a valid start
+    (stage 2). A numbering off by one vertex, or a gradient gathered from the mesh's rows, fails."""
+    from hexsos_plugins.meshrepair import kernels as nb
+    from hexsos_plugins.meshrepair.boundary import boundary_model
+    from hexsos_plugins.meshrepair.driver import cell_size
+
+    P, H = graded_solid(4)
+    bm = boundary_model(P, [("hexahedron", H)], tolerance=0.0)
+    free = np.zeros(len(P), bool)
+    free[H[:60].ravel()] = True  # a region: the vertices of 60 hexes, boundary ones among them
+    free[bm.corners] = False
+    GB, T = op.hex_bernstein_samples(), op.bernstein_matrix()
+
+    def mesh_numbering(prob, x, stage, arg, flagged=None):
+        V = prob.full(x)
+        g = np.zeros((len(P), 3))
+        total = 0.0
+        for bi, b in enumerate(prob.blocks):
+            if stage == 1:
+                total += nb.untangle_corners(V, b["conn"], b["Gw3"], b["s"], arg, op.THETA, g, True)[0]
+                rows = np.flatnonzero(flagged[bi])
+                total += nb.untangle_bernstein(V, b["conn"], rows, GB, T, b["s"], arg, op.THETA_B, g, True)[0]
+            else:
+                M = b["conn"].shape[0]
+                ec, mc, ok, gc = np.empty(M), np.empty(M), np.empty(M, dtype=np.bool_), np.empty((M, 8, 3))
+                assert nb.barrier_cells(V, b["conn"], b["Gq3"], float(b["factor"]), arg, b["s"], op.BETA, True,
+                                        True, ec, mc, ok, gc)
+                total += float(ec.sum())
+                nb.scatter_cells(g, b["conn"], gc)
+        if stage == 2:
+            ge = np.zeros_like(g)
+            for b in prob.blocks:
+                total += nb.hex_edge_term(V, b["conn"], b["s"], op.EDGE_WEIGHT, ge)
+            g += ge
+        sl = prob.slide
+        d = V[sl.idx] - sl.ref
+        Qd = np.einsum("kab,kb->ka", sl.Q, d)
+        w = op.BOUNDARY_WEIGHT / sl.s2
+        g[sl.idx] += 2.0 * w[:, None] * Qd
+        total += float((w * (Qd * d).sum(axis=1)).sum())
+        return total, g[prob.free].ravel()
+
+    rng = np.random.default_rng(3)
+    diag = float(np.linalg.norm(P.max(axis=0) - P.min(axis=0)))
+    for stage, amp in ((1, 0.12), (2, 0.005)):
+        Q = P + np.where(free[:, None], amp * diag * rng.standard_normal(P.shape), 0.0)
+        prob = op.Problem(Q, [("hexahedron", H)], [cell_size(P, "hexahedron", H)], free, slide=bm.slide(Q, free))
+        assert prob.used.size < len(P) and prob.slide.idx.size > 0
+        x = prob.x0() + 1e-3 * diag * rng.standard_normal(prob.free.size * 3)
+        if stage == 1:
+            flagged = prob.bad_cells(prob.full(x))
+            assert flagged[0].sum() > 0
+            got = prob.untangle_energy(x, 0.05, flagged)
+            want = mesh_numbering(prob, x, 1, 0.05, flagged)
+        else:
+            t = 0.5 * prob.min_sj(prob.full(x))
+            assert t > 0
+            got = prob.barrier_energy(x, t)
+            want = mesh_numbering(prob, x, 2, t)
+        assert got[0] == want[0] and np.array_equal(got[1], want[1]), stage
+        assert np.abs(got[1]).max() > 0
