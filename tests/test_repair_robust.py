@@ -278,3 +278,44 @@ def test_algorithm_2s_hexes_with_a_negative_bernstein_coefficient_are_lifted_bef
     monkeypatch.setattr(driver, "PAPER_LIFT_SECONDS", 0.0)
     r0 = hs.repair(X, H, boundary="free")
     assert not r0.stats["untangled"] and "local" not in [e["stage"] for e in r0.history]
+
+
+def test_the_last_stages_share_what_is_left_of_the_repairs_seconds(monkeypatch):
+    """Without a time limit the vertex steps after stage 2 and the joint steps get at most what is left of
+    ``REPAIR_SECONDS`` from the repair's start (the vertex steps half of it), at least their minimum: after a long
+    untangling (here: ``REPAIR_SECONDS`` = 0) they trim to their minimums; otherwise, and with a time limit, they
+    get their own budgets. Read from the deadlines the two stages are handed."""
+    import time
+
+    from hexsos_plugins.meshrepair import driver as dr
+    from hexsos_plugins.meshrepair import jointsteps as js
+    from hexsos_plugins.meshrepair import localopt as lo
+
+    seen = {"local": [], "joint": []}
+    real_joint, real_sweeps = js.joint_steps, lo.local_sweeps
+
+    def joint(*a, deadline=None, **k):
+        seen["joint"].append(deadline - time.perf_counter())
+        return real_joint(*a, deadline=deadline, **k)
+
+    def sweeps(*a, deadline=None, **k):
+        seen["local"].append(deadline - time.perf_counter())
+        return real_sweeps(*a, deadline=deadline, **k)
+
+    monkeypatch.setattr(js, "joint_steps", joint)
+    monkeypatch.setattr(lo, "local_sweeps", sweeps)
+    P, H = structured_grid(4)
+    P[_idx(2, 2, 4), 2] -= 0.4  # an inverted hex under a boundary face
+    for limit, seconds, trimmed in ((None, 1e6, False), (None, 0.0, True), (600.0, 0.0, False)):
+        monkeypatch.setattr(dr, "REPAIR_SECONDS", seconds)
+        seen["local"].clear()
+        seen["joint"].clear()
+        r = hs.repair(P, H, time_limit=limit)
+        assert r.success and seen["local"] and seen["joint"]
+        local_s, joint_s = seen["local"][-1], seen["joint"][-1]
+        if trimmed:
+            assert dr.LOCAL_MIN_SECONDS - 0.5 < local_s <= dr.LOCAL_MIN_SECONDS
+            assert dr.JOINT_MIN_SECONDS - 0.5 < joint_s <= dr.JOINT_MIN_SECONDS
+        else:
+            assert dr.LOCAL_SECONDS - 0.5 < local_s <= dr.LOCAL_SECONDS
+            assert dr.JOINT_SECONDS - 0.5 < joint_s <= dr.JOINT_SECONDS

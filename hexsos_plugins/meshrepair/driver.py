@@ -89,6 +89,14 @@ LOCAL_SECONDS = 10.0
 #: Stage 2c's budget (joint steps; on the published meshes they end in 1-10 s: Dolphin_2 at this budget, and four
 #: of the sixteen perturbed ones)
 JOINT_SECONDS = 10.0
+#: Without a time limit the vertex steps after stage 2 and the joint steps also share what is left of this many
+#: seconds from the repair's start (the vertex steps at most half of it), each keeping its minimum: after a long
+#: untangling they trim, so that a stress test ends within about a minute (the 34,880-hex kitten_with_bifur_3
+#: with every interior vertex moved by 1.5 edge lengths: 34 s of untangling, 6 s of rounds, then 5 s of vertex
+#: steps and 10 s of joint steps, 57-61 s in all on a slow day). Every published mesh of the README is done before.
+REPAIR_SECONDS = 50.0
+LOCAL_MIN_SECONDS = 2.0
+JOINT_MIN_SECONDS = 3.0
 #: Seconds for stage 1 without a time limit: an untangling not done by then does not finish (kitten_with_bifur_3's
 #: barrier went on 456 s with more cells inverted than it started with); the paper's Algorithm 2 takes over
 UNTANGLE_SECONDS = 60.0
@@ -633,14 +641,22 @@ class _Optimize:
             mv[conn.ravel()] = False
         return mv
 
+    def _share(self, cap, floor, part=1.0):
+        """Seconds for a last stage: ``cap``, but without a time limit at most ``part`` of what is left of
+        ``REPAIR_SECONDS`` from the start, and at least ``floor``."""
+        if self.time_limit is not None:
+            return cap
+        left = self.t0 + REPAIR_SECONDS - time.perf_counter()
+        return min(cap, max(floor, part * left))
+
     def _joint(self, V, movable, bm, others, deadline):
         """Stage 2c (:func:`hexsos_plugins.meshrepair.jointsteps.joint_steps`) on the hexes, for at most
-        ``JOINT_SECONDS``: the vertices the last vertex steps could move (feature corners within the band), those of
-        other cells staying; boundary vertices move within the band (without one they stay)."""
+        ``JOINT_SECONDS`` (:meth:`_share`): the vertices the last vertex steps could move (feature corners within
+        the band), those of other cells staying; boundary vertices move within the band (without one they stay)."""
         from .jointsteps import joint_steps
 
         mv = self._hex_movable(movable, others, True)
-        end = time.perf_counter() + JOINT_SECONDS
+        end = time.perf_counter() + self._share(JOINT_SECONDS, JOINT_MIN_SECONDS)
         W, info = joint_steps(V, self.H, mv, boundary=bm, deadline=end if deadline is None else min(deadline, end),
                               target=self.min_sj)
         self.local_info["joint_steps"] = info["steps"]
@@ -956,7 +972,8 @@ class _Optimize:
             if untangled and self.local_steps and (self.min_sj is None or cell_scaled_jacobians(V, blocks)[0].min()
                                                    < self.min_sj):
                 ts = time.perf_counter()
-                V = self._local(V, movable, bm, others, deadline1, band=True)
+                V = self._local(V, movable, bm, others, deadline1, band=True,
+                                seconds=self._share(LOCAL_SECONDS, LOCAL_MIN_SECONDS, 0.5))
                 stage_s["local"] = time.perf_counter() - ts
                 # stage 2c: where the worst hexes share vertices, they move together
                 ts = time.perf_counter()

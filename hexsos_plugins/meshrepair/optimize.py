@@ -312,10 +312,11 @@ class Problem:
 
     # --- boundary penalty
     def _boundary(self, V, g, penalty, idx=None):
-        """Sliding boundary vertices (rows ``idx`` of V and g: default their numbers in the mesh). ``penalty`` (used by both stages): each pays ``w |Q (x - r)|^2 / s^2`` (Q
-        the projector onto its input normal, or onto the plane normal to its feature edge; r its reference on the
-        surface). Otherwise they would move exactly in their input tangent plane (or along their feature
-        tangent): their gradient projected there (measured worse, see the module docstring)."""
+        """Sliding boundary vertices (rows ``idx`` of V and g; default: their numbers in the mesh). ``penalty``
+        (used by both stages): each pays ``w |Q (x - r)|^2 / s^2`` (Q the projector onto its input normal, or onto
+        the plane normal to its feature edge; r its reference on the surface). Otherwise they would move exactly in
+        their input tangent plane (or along their feature tangent): their gradient projected there (measured worse,
+        see the module docstring)."""
         sl = self.slide
         if sl is None or sl.idx.size == 0:
             return 0.0
