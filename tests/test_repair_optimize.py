@@ -619,7 +619,7 @@ from hexsos_plugins import repair
 from hexsos_plugins.examples import structured_grid
 from hexsos_plugins.meshrepair import optimize as opt
 from hexsos_plugins.meshrepair.driver import cell_size
-from comparison.stress import single_fold, stress
+from comparison.stress import hex_prism_block, single_fold, stress
 
 def read_only(a):  # as hexsos_plugins.read gives the connectivity: a read-only view
     a = np.array(a)
@@ -637,6 +637,11 @@ P = stress(P, H, frac=1.0, amp=2.5, seed=0)
 blocks = [("hexahedron", H)]
 prob = opt.Problem(P, blocks, [cell_size(P, "hexahedron", H)], np.ones(len(P), dtype=bool))
 opt.untangle(prob, max_outer=2)
+# a mixed mesh's other cells (wedges): the general corner loop
+P, cells = hex_prism_block(3)
+P = stress(P, cells[0][1], frac=1.0, amp=2.5, seed=0)
+prob = opt.Problem(P, cells, [cell_size(P, n, c) for n, c in cells], np.ones(len(P), dtype=bool))
+opt.untangle(prob, max_outer=1)
 print(json.dumps({name: [[str(t) for t in s] for s in getattr(lo, name).signatures] for name in lo.SIGNATURES}))
 """
 
@@ -644,7 +649,7 @@ print(json.dumps({name: [[str(t) for t in s] for s in getattr(lo, name).signatur
 def test_the_loops_loaded_before_the_clocks_are_the_ones_the_repair_calls():
     """``kernels.load`` compiles (or loads) each loop for :data:`kernels.SIGNATURES` before the repair's clocks
     start; in a fresh process where it does nothing, the repair's paths (a fold inside a hex, an inverted hex, the
-    barrier) call every loop, each with exactly those types and no other: with a read-only connectivity (a file
+    barrier on hexes and on a mixed mesh's wedges) call every loop, each with exactly those types and no other: with a read-only connectivity (a file
     read by hexsos) the driver's private copy keeps it so (without it the vertex steps' loops are compiled a
     second time)."""
     from hexsos_plugins.meshrepair import kernels as lo
@@ -907,3 +912,47 @@ def test_the_energies_on_the_regions_numbering_equal_those_on_the_meshs_to_the_b
             want = mesh_numbering(prob, x, 2, t)
         assert got[0] == want[0] and np.array_equal(got[1], want[1]), stage
         assert np.abs(got[1]).max() > 0
+
+
+def test_stage_ones_hex_corner_loop_equals_the_general_loop_to_the_bit_on_adversarial_hexes():
+    """Stage 1's hex corners run :func:`kernels.untangle_edges` (each Jacobian column the difference of two nodes);
+    it must give the energy, the least D and the gradient of the general loop :func:`kernels.untangle_corners` on the
+    same corners to the bit: inverted, flat, collapsed (coincident corners) and mirrored hexes, sizes from 1e-6 to
+    1e6, eps from 1e-12 to 1. Cells other than hexes, and a G not of +-1 differences, keep the general loop."""
+    from hexsos_plugins.meshrepair import kernels as lo
+
+    rng = np.random.default_rng(11)
+    base = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [0, 0, 1], [1, 0, 1], [1, 1, 1], [0, 1, 1]], float)
+    cells = [base + 0.45 * rng.standard_normal((8, 3)) for _ in range(300)]  # about half inverted somewhere
+    flat = base.copy()
+    flat[4:, 2] = 0.0  # every corner determinant 0
+    collapsed = base.copy()
+    collapsed[[1, 2]] = collapsed[0]  # coincident corners
+    cells += [flat, collapsed, base[[1, 0, 3, 2, 5, 4, 7, 6]]]  # the last mirrored: every corner inverted
+    scales = np.exp(rng.uniform(np.log(1e-6), np.log(1e6), len(cells)))
+    V = np.concatenate([c * k for c, k in zip(cells, scales)])
+    H = np.arange(len(V), dtype=np.int64).reshape(-1, 8)
+    prob = op.Problem(V, [("hexahedron", H)], [scales], np.ones(len(V), bool))
+    b = prob.blocks[0]
+    assert b["edges"] is not None
+    head, tail = b["edges"]
+    for eps in (1e-12, 1e-3, 0.3, 1.0):
+        for want_grad in (True, False):
+            g1, g2 = np.zeros_like(V), np.zeros_like(V)
+            e1, d1 = lo.untangle_corners(V, b["conn"], b["Gw3"], b["s"], eps, op.THETA, g1, want_grad)
+            e2, d2 = lo.untangle_edges(V, b["conn"], head, tail, b["s"], eps, op.THETA, g2, want_grad)
+            assert (e1, d1) == (e2, d2) and np.array_equal(g1, g2)
+            assert np.isfinite(e1) and d1 < 0 and (np.abs(g1).max() > 0) == want_grad
+    # an edge read the wrong way round is caught by the same comparison
+    g3 = np.zeros_like(V)
+    e3, _ = lo.untangle_edges(V, b["conn"], tail, head, b["s"], 0.3, op.THETA, g3, True)
+    g1 = np.zeros_like(V)
+    e1, _ = lo.untangle_corners(V, b["conn"], b["Gw3"], b["s"], 0.3, op.THETA, g1, True)
+    assert e3 != e1
+    # other cells keep the general loop; a sample that is not a difference of two nodes is refused
+    T = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], float)
+    tet = op.Problem(T, [("tetra", np.arange(4)[None])], [np.ones(1)], np.ones(4, bool))
+    assert tet.blocks[0]["edges"] is None
+    G = b["Gw3"].copy()
+    G[0, 0, 0] = -0.5
+    assert op.edge_pairs(G) is None and op.edge_pairs(b["Gw3"]) is not None

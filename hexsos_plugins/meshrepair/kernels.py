@@ -108,6 +108,70 @@ def untangle_corners(V, conn, G, s, eps, theta, g, want_grad):
     return total, dmin
 
 
+@njit(cache=True, nogil=True)
+def untangle_edges(V, conn, head, tail, s, eps, theta, g, want_grad):
+    """:func:`untangle_corners` where every sample's G is an edge difference: column d of sample k is
+    x[head[k, d]] - x[tail[k, d]] (G[k] has +1 at head, -1 at tail, 0 elsewhere: the hex corners of
+    :mod:`hexsos_plugins.meshrepair.optimize`, the unit cube's corners folded in). The same numbers as
+    :func:`untangle_corners` with that G, to the bit: its sums of two nonzero terms (products with +-1, exact) are
+    this difference, rounded once, and each node's gradient takes the same terms in the same order; the zero terms it
+    skips change no sum. The loop reads 4 nodes per sample, not 8 (one third of the time on 8,855 hexes)."""
+    M = conn.shape[0]
+    K = head.shape[0]
+    n = conn.shape[1]
+    X = np.empty((n, 3))
+    gl = np.empty((n, 3))
+    J = np.empty((3, 3))
+    C = np.empty((3, 3))
+    dE = np.empty((3, 3))
+    total = 0.0
+    dmin = np.inf
+    e2 = eps * eps
+    for m in range(M):
+        for i in range(n):
+            v = conn[m, i]
+            X[i, 0] = V[v, 0]
+            X[i, 1] = V[v, 1]
+            X[i, 2] = V[v, 2]
+        if want_grad:
+            gl[:] = 0.0
+        inv = 1.0 / s[m]
+        for k in range(K):
+            F = 0.0
+            for a in range(3):
+                for d in range(3):
+                    J[a, d] = (X[head[k, d], a] - X[tail[k, d], a]) * inv
+                    F += J[a, d] * J[a, d]
+            D = cofactor(J, C)
+            if D < dmin:
+                dmin = D
+            chi, dchi = _chi(D, e2)
+            c23 = chi ** (-2.0 / 3.0)
+            total += (1.0 - theta) * F * c23 + theta * (D * D + 1.0) / chi
+            if want_grad:
+                coef = (-(2.0 / 3.0) * (1.0 - theta) * F * c23 / chi * dchi
+                        + theta * (2.0 * D / chi - (D * D + 1.0) * dchi / (chi * chi)))
+                for a in range(3):
+                    for d in range(3):
+                        dE[a, d] = (2.0 * (1.0 - theta) * c23 * J[a, d] + coef * C[a, d]) * inv
+                # each node takes its terms of sample k in the order of d, as in :func:`untangle_corners`
+                for d in range(3):
+                    hd, tl = head[k, d], tail[k, d]
+                    gl[hd, 0] += dE[0, d]
+                    gl[hd, 1] += dE[1, d]
+                    gl[hd, 2] += dE[2, d]
+                    gl[tl, 0] -= dE[0, d]
+                    gl[tl, 1] -= dE[1, d]
+                    gl[tl, 2] -= dE[2, d]
+        if want_grad:
+            for i in range(n):
+                v = conn[m, i]
+                g[v, 0] += gl[i, 0]
+                g[v, 1] += gl[i, 1]
+                g[v, 2] += gl[i, 2]
+    return total, dmin
+
+
 # VTK node at parameter corner (i, j, k)
 _NODE = np.array([[[0, 4], [3, 7]], [[1, 5], [2, 6]]], dtype=np.int64)
 _W = np.array([[1.0, 0.0], [0.5, 0.5], [0.0, 1.0]])  # linear interpolation weights at 0, 1/2, 1
@@ -891,6 +955,7 @@ _f8, _i8, _b1 = types.float64, types.int64, types.boolean
 #: these arrays: the same types).
 SIGNATURES = {
     "untangle_corners": (_F2, _I2, _F3, _F1, _f8, _f8, _F2, _b1),
+    "untangle_edges": (_F2, _I2, _I2, _I2, _F1, _f8, _f8, _F2, _b1),
     "untangle_bernstein": (_F2, _I2, _I1, types.float64[:, :, :], _F2, _F1, _f8, _f8, _F2, _b1),
     "_barrier_serial": (_F2, _I2, _F3, _f8, _f8, _F1, _f8, _b1, _b1, _F1, _F1, types.boolean[::1], _F3, _I1),
     "hex_bernstein": (_F2, _I2),

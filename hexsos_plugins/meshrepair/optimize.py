@@ -232,7 +232,7 @@ class Problem:
             self.blocks.append({"name": name, "rows": rows, "conn": np.ascontiguousarray(conn[rows]),
                                 "s": np.ascontiguousarray(np.asarray(s, dtype=np.float64)[rows]), "Gw": _gm(Gw),
                                 "Gq": _gm(G), "Gw3": np.ascontiguousarray(Gw), "Gq3": np.ascontiguousarray(G),
-                                "factor": factor, "hex": name == "hexahedron"})
+                                "edges": edge_pairs(Gw), "factor": factor, "hex": name == "hexahedron"})
         # the energies run on the vertices of these cells (and the free ones) alone, numbered apart: their arrays
         # then have the region's size, not the mesh's (a region of 8,855 hexes in the 38,086 vertices of the
         # stress-tested kitten_with_bifur_3: stage 1's energy 9.1 -> 7.6 ms, the same numbers to the bit, every
@@ -483,6 +483,22 @@ def _lbfgs(fun, x, *, max_iter, memory=10, deadline=None, ftol=1e-9, stop=None):
     return x, f, it
 
 
+def edge_pairs(G):
+    """(head, tail), each (K, 3) int64, when column d of every sample k of G (K, n, 3) is +1 at node head[k, d],
+    -1 at node tail[k, d] and 0 elsewhere (the hex's corners, the unit cube folded in: stage 1's corner term then
+    runs :func:`hexsos_plugins.meshrepair.kernels.untangle_edges`); else None."""
+    K = G.shape[0]
+    head, tail = np.empty((K, 3), dtype=np.int64), np.empty((K, 3), dtype=np.int64)
+    for k in range(K):
+        for d in range(3):
+            col = G[k, :, d]
+            plus, minus = np.flatnonzero(col == 1.0), np.flatnonzero(col == -1.0)
+            if plus.size != 1 or minus.size != 1 or np.count_nonzero(col) != 2:
+                return None
+            head[k, d], tail[k, d] = plus[0], minus[0]
+    return head, tail
+
+
 def _corner_terms(V, b, eps, g):
     """Stage 1's corner term of block ``b`` (energy, min D), its gradient added to ``g``: on a block of
     :data:`UNTANGLE_PARTS_MIN_CELLS` cells and more, in :data:`UNTANGLE_PARTS` parts of consecutive cells, each with
@@ -490,14 +506,20 @@ def _corner_terms(V, b, eps, g):
     on the threads: nor do the numbers)."""
     conn, G, s = b["lconn"], b["Gw3"], b["s"]
     M = conn.shape[0]
+    edges = b.get("edges")
+
+    def loop(conn, s, g):
+        if edges is not None:
+            return partial(_nb.untangle_edges, V, conn, edges[0], edges[1], s, eps, THETA, g, True)
+        return partial(_nb.untangle_corners, V, conn, G, s, eps, THETA, g, True)
+
     if M < UNTANGLE_PARTS_MIN_CELLS:
-        return _nb.untangle_corners(V, conn, G, s, eps, THETA, g, True)
+        return loop(conn, s, g)()
     from ..kernel.pool import run_all
 
     cuts = np.linspace(0, M, UNTANGLE_PARTS + 1).astype(np.int64)
     gp = np.zeros((UNTANGLE_PARTS,) + g.shape)
-    out = run_all([partial(_nb.untangle_corners, V, conn[lo:hi], G, s[lo:hi], eps, THETA, gp[i], True)
-                   for i, (lo, hi) in enumerate(zip(cuts[:-1], cuts[1:]))])
+    out = run_all([loop(conn[lo:hi], s[lo:hi], gp[i]) for i, (lo, hi) in enumerate(zip(cuts[:-1], cuts[1:]))])
     g += gp.sum(axis=0)
     return sum(e for e, _ in out), min(d for _, d in out)
 
