@@ -5,6 +5,7 @@ and Gmsh's own untangler, on generated meshes and the paper's bunny.
     python -m comparison.bench_repair --published [--local] [--mesh REL ...] [--json OUT.json]
     python -m comparison.bench_repair --published --starts N [--mesh REL ...]
     python -m comparison.bench_repair --subdivided [--jobs N]
+    python -m comparison.bench_repair --corner-loops [--mesh REL ...]
 
 ``--published``: the default repair on the published meshes of ``../shared/data`` (the seven HexaLab meshes and the
 bunny, read in place): before / after (cells not proven valid, scaled Jacobian min / p1 / mean), Hausdorff, max
@@ -25,6 +26,9 @@ surface, kept fixed), on meshes up to ``--gmsh-max-hexes``, its result checked b
 ``--subdivided``: the default repair on Gmsh's all-hex meshes of CAD solids (tetrahedra split into hexes, singular
 edges everywhere; :func:`comparison.stress.subdivided_solid`) with a share of their boundary vertices slid along the
 surface (:func:`comparison.stress.slide_boundary`): boundary hexes folded as a pipeline's projection folds them.
+
+``--corner-loops``: stage 1's corner term on hexes, the general loop against the hex loop the repair runs (one
+thread each, the same process, the same coordinates; :func:`corner_loops`).
 
 ``--samples`` measures stage 1's sample points (corners only, corners + the Bernstein coefficients of the hexes
 that need them -- the default --, corners + every hex's coefficients) on stress tests. ``--table1`` prints the
@@ -418,6 +422,45 @@ def samples(quick=False):
                   f" | {info['iterations']} | {t:.2f} |")
 
 
+def corner_loops(names=None):
+    """Stage 1's corner term on hexes, the general loop (``kernels.untangle_corners``, every node of G) against the
+    hex loop the repair runs (``kernels.untangle_edges``, each column a difference of two nodes), one thread each, in
+    this process, on the same coordinates: a generated stress test (a 20^3 graded solid, every interior vertex moved
+    by an edge length) and the published meshes so perturbed (1.5 edge lengths, seed 0, as ``--perturbed``); their
+    energies and gradients are compared to the bit."""
+    from comparison.stress import graded_solid, stress
+    from hexsos_plugins.meshrepair import kernels as nb
+    from hexsos_plugins.meshrepair import optimize as opt
+    from hexsos_plugins.meshrepair.driver import cell_size
+
+    nb.load()
+    P, H = graded_solid(20)
+    cases = [("graded20 stress 100%", stress(P, H, frac=1.0, amp=1.0, seed=20), H)]
+    for name, m in _published_meshes(names):
+        cases.append((name, stress(m.points, m.hexes, frac=1.0, amp=1.5, seed=0), m.hexes))
+    print("| mesh | hexes | general loop (ms) | hex loop (ms) | ratio | the same numbers |\n|---|---|---|---|---|---|")
+    for name, P, H in cases:
+        H = np.ascontiguousarray(H, dtype=np.int64)
+        prob = opt.Problem(P, [("hexahedron", H)], [cell_size(P, "hexahedron", H)], np.ones(len(P), dtype=bool))
+        b = prob.blocks[0]
+        head, tail = b["edges"]
+        V = np.ascontiguousarray(prob.V)
+        runs = {}
+        loops = (("general", nb.untangle_corners, (b["Gw3"],)), ("hex", nb.untangle_edges, (head, tail)))
+        for label, fn, args in loops:
+            g = np.zeros_like(V)
+            out = fn(V, b["conn"], *args, b["s"], 0.1, opt.THETA, g, True)
+            reps = max(3, int(2e6 // len(H)))
+            t0 = time.perf_counter()
+            for _ in range(reps):
+                fn(V, b["conn"], *args, b["s"], 0.1, opt.THETA, np.zeros_like(V), True)
+            runs[label] = ((time.perf_counter() - t0) / reps, out, g)
+        (tg, og, gg), (th, oh, gh) = runs["general"], runs["hex"]
+        same = og == oh and np.array_equal(gg, gh)
+        print(f"| {name} | {len(H):,} | {1e3 * tg:.2f} | {1e3 * th:.2f} | {tg / th:.2f}x | {'yes' if same else 'no'} |",
+              flush=True)
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--quick", action="store_true", help="smaller meshes (a minute or two)")
@@ -441,9 +484,14 @@ def main(argv=None):
                          "edge lengths (HexOpt's stress tests)")
     ap.add_argument("--jobs", type=int, default=0, metavar="N",
                     help="--published: the repair's threads (default 0: every core, as `hexsos repair`)")
+    ap.add_argument("--corner-loops", action="store_true",
+                    help="stage 1's corner term: the general loop against the hex loop the repair runs")
     ap.add_argument("--subdivided", action="store_true",
                     help="instead, Gmsh's all-hex meshes of CAD solids with slid boundary vertices (module docstring)")
     args = ap.parse_args(argv)
+    if args.corner_loops:
+        corner_loops(args.mesh)
+        return 0
     if args.subdivided:
         subdivided(jobs=args.jobs)
         return 0
