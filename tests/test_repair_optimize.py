@@ -912,6 +912,10 @@ def test_the_energies_on_the_regions_numbering_equal_those_on_the_meshs_to_the_b
             want = mesh_numbering(prob, x, 2, t)
         assert got[0] == want[0] and np.array_equal(got[1], want[1]), stage
         assert np.abs(got[1]).max() > 0
+    # a slide whose vertices are not the problem's free vertices has no rows there: refused
+    with pytest.raises(ValueError, match="free vertices"):
+        op.Problem(P, [("hexahedron", H)], [cell_size(P, "hexahedron", H)], free,
+                   slide=bm.slide(P, np.ones(len(P), bool)))
 
 
 def test_stage_ones_hex_corner_loop_equals_the_general_loop_to_the_bit_on_adversarial_hexes():

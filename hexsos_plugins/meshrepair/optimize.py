@@ -244,6 +244,9 @@ class Problem:
             b["lconn"] = np.ascontiguousarray(local[b["conn"]])
         self.local_free = local[self.free]
         self.local_slide = None if slide is None else local[slide.idx]
+        if self.local_slide is not None and (self.local_slide < 0).any():
+            raise ValueError("slide: its vertices must be free vertices of the problem; "
+                             f"{int((self.local_slide < 0).sum())} are not")
         self.evaluations = 0
         self.ratio_floor = 0.0  # stage 2's edge floor (:meth:`hold_edge_ratios`)
 
