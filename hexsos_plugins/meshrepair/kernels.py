@@ -252,16 +252,6 @@ def _to_bernstein(f, forward):
 
 
 @njit(cache=True)
-def _hex_grid_grad(g, conn, m, XU, XV, XW, df):
-    """Add to g the gradient of sum_q df[q] f_q (f the grid values of :func:`_hex_grid`)."""
-    gl = np.zeros((8, 3))
-    _hex_grid_grad_local(gl, XU, XV, XW, df, np.empty((3, 3, 3)), np.empty((3, 3, 3)), np.empty((3, 3, 3)))
-    for i in range(8):
-        for a in range(3):
-            g[conn[m, i], a] += gl[i, a]
-
-
-@njit(cache=True)
 def hex_bernstein(V, conn):
     """The 27 Bernstein coefficients of det J of every hex: (M, 27)."""
     M = conn.shape[0]
@@ -283,14 +273,21 @@ def untangle_bernstein(V, conn, rows, GB, T, s, eps, theta_b, g, want_grad):
     XU = np.empty((3, 3, 3))
     XV = np.empty((3, 3, 3))
     XW = np.empty((3, 3, 3))
+    GU = np.empty((3, 3, 3))
+    GV = np.empty((3, 3, 3))
+    GW = np.empty((3, 3, 3))
+    eu = np.empty((2, 2, 3))
+    ev = np.empty((2, 2, 3))
+    ew = np.empty((2, 2, 3))
+    gl = np.empty((8, 3))
     b = np.empty(27)
     db = np.empty(27)
     total = 0.0
     bmin = np.inf
     e2 = eps * eps
-    for r in range(rows.shape[0]):
+    for r in range(rows.shape[0]):  # the scratch arrays allocated once, not per hex (the same numbers)
         m = rows[r]
-        _hex_grid(V, conn, m, XU, XV, XW, b)
+        _hex_grid_s(V, conn, m, XU, XV, XW, b, eu, ev, ew)
         _to_bernstein(b, True)
         s3 = s[m] ** 3
         for p in range(27):
@@ -302,7 +299,9 @@ def untangle_bernstein(V, conn, rows, GB, T, s, eps, theta_b, g, want_grad):
             db[p] = theta_b * (2.0 * bh / chi - (bh * bh + 1.0) * dchi / (chi * chi)) / s3
         if want_grad:
             _to_bernstein(db, False)
-            _hex_grid_grad(g, conn, m, XU, XV, XW, db)
+            gl[:] = 0.0
+            _hex_grid_grad_local(gl, XU, XV, XW, db, GU, GV, GW)
+            _scatter(g, conn, m, gl)
     return total, bmin
 
 
@@ -318,7 +317,8 @@ _SMALL = 1e-150
 
 @njit(cache=True, inline="always")
 def _hex_grid_grad_local(gl, XU, XV, XW, df, GU, GV, GW):
-    """As :func:`_hex_grid_grad`, into the cell's own (8, 3) rows (GU, GV, GW scratch (3, 3, 3))."""
+    """The gradient of sum_q df[q] f_q (f the grid values of :func:`_hex_grid`) added into the cell's own (8, 3)
+    rows gl (GU, GV, GW scratch (3, 3, 3))."""
     GU[:] = 0.0
     GV[:] = 0.0
     GW[:] = 0.0
