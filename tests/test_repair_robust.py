@@ -299,7 +299,7 @@ def test_the_last_stages_share_what_is_left_of_the_repairs_seconds(monkeypatch):
         return real_joint(*a, deadline=deadline, **k)
 
     def sweeps(*a, deadline=None, **k):
-        seen["local"].append(deadline - time.perf_counter())
+        seen["local"].append((k.get("band_below", -np.inf), deadline - time.perf_counter()))
         return real_sweeps(*a, deadline=deadline, **k)
 
     monkeypatch.setattr(js, "joint_steps", joint)
@@ -312,7 +312,9 @@ def test_the_last_stages_share_what_is_left_of_the_repairs_seconds(monkeypatch):
         seen["joint"].clear()
         r = hs.repair(P, H, time_limit=limit)
         assert r.success and seen["local"] and seen["joint"]
-        local_s, joint_s = seen["local"][-1], seen["joint"][-1]
+        # the last vertex steps: a pass on the surface, then one in the band, under one deadline: read at the first
+        assert seen["local"][-1][0] > -np.inf and seen["local"][-2][0] == -np.inf
+        local_s, joint_s = seen["local"][-2][1], seen["joint"][-1]
         if trimmed:
             assert dr.LOCAL_MIN_SECONDS - 0.5 < local_s <= dr.LOCAL_MIN_SECONDS
             assert dr.JOINT_MIN_SECONDS - 0.5 < joint_s <= dr.JOINT_MIN_SECONDS
