@@ -436,11 +436,7 @@ def _barrier_chunk(V, conn, nz, gi, gv, factor, t, s, beta, hexes, want_grad, ec
         if stop[0] != 0:
             return False
         gl[:] = 0.0
-        for i in range(n):
-            v = conn[m, i]
-            X[i, 0] = V[v, 0]
-            X[i, 1] = V[v, 1]
-            X[i, 2] = V[v, 2]
+        _gather(V, conn, m, X)
         total = 0.0
         smin = np.inf
         ok = True
@@ -560,12 +556,8 @@ def hex_edge_term(V, conn, s, gamma, g):
 @njit(cache=True)
 def scatter_cells(g, conn, gcell):
     """g[conn[m, i]] += gcell[m, i] in cell order."""
-    M, n = conn.shape
-    for m in range(M):
-        for i in range(n):
-            v = conn[m, i]
-            for a in range(3):
-                g[v, a] += gcell[m, i, a]
+    for m in range(conn.shape[0]):
+        _scatter(g, conn, m, gcell[m])
 
 
 # --- the vertex steps of :mod:`hexsos_plugins.meshrepair.localopt` ----------------------------------------------
