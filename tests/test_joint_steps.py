@@ -196,3 +196,25 @@ def test_a_part_of_a_refused_step_is_kept_and_the_same_programs_reach_higher(mon
     assert info["min_after"] > whole["min_after"] + 0.003, (info, whole)
     assert sample_scaled_jacobians(J[H], "hexahedron").min() == pytest.approx(info["min_after"], abs=1e-12)
     assert _certified(J, H)
+
+
+def test_a_plateau_larger_than_a_program_grows_the_program():
+    """A 6^3 grid whose two middle layers of hexes are sheared alike: 72 hexes share the minimum (0.857), more than
+    the 50 of :data:`~hexsos_plugins.meshrepair.jointsteps.MAX_HEXES`. A program of 50 of them lifts nothing (its
+    hexes' neighbours on the plateau hold it down: no step kept); the default takes as many as the plateau holds
+    and lifts the layers past 0.95, valid."""
+    from hexsos_plugins.meshrepair.jointsteps import MAX_HEXES
+
+    P, H = structured_grid(6, 6, 6)
+    h = P[:, 1].max() / 6
+    Q = P.copy()
+    Q[:, 0] += 0.6 * np.clip(P[:, 1], 3 * h, 5 * h)
+    s0 = sample_scaled_jacobians(Q[H], "hexahedron").min(axis=1)
+    assert ((s0 < s0.min() + 1e-9).sum() == 72) and MAX_HEXES < 72
+    mv = np.ones(len(Q), dtype=bool)
+    _, fixed = joint_steps(Q, H, mv, max_tries=20, max_hexes=MAX_HEXES)
+    assert fixed["steps"] == 0 and fixed["min_after"] == fixed["min_before"], fixed
+    J, grown = joint_steps(Q, H, mv, max_tries=20)
+    assert grown["hexes"] >= 72 and grown["min_after"] > 0.95, grown
+    assert sample_scaled_jacobians(J[H], "hexahedron").min() == pytest.approx(grown["min_after"], abs=1e-12)
+    assert _certified(J, H)
