@@ -321,3 +321,50 @@ def test_the_last_stages_share_what_is_left_of_the_repairs_seconds(monkeypatch):
         else:
             assert dr.LOCAL_SECONDS - 0.5 < local_s <= dr.LOCAL_SECONDS
             assert dr.JOINT_SECONDS - 0.5 < joint_s <= dr.JOINT_SECONDS
+
+
+def test_rounds_undone_give_their_seconds_to_the_joint_steps(monkeypatch):
+    """Stage 2's rounds that end below their start are undone (kitten_with_bifur_3: 10.9 s of them); the joint steps
+    then get those seconds on top of ``JOINT_SECONDS``. Here the rounds are replaced by one that takes 1.5 s and
+    lowers the minimum (one vertex of the worst hex moved): the repair undoes it, ends certified, and hands the
+    joint steps a deadline at least 1 s longer than their own budget (the other test: at most their budget)."""
+    import time
+
+    from hexsos_plugins.meshrepair import driver as dr
+    from hexsos_plugins.meshrepair import jointsteps as js
+    from hexsos_plugins.meshrepair import optimize as opt
+
+    seen = {"joint": [], "rounds": 0}
+    real_joint = js.joint_steps
+
+    def joint(*a, deadline=None, **k):
+        seen["joint"].append(deadline - time.perf_counter())
+        return real_joint(*a, deadline=deadline, **k)
+
+    def worse(prob, **k):
+        seen["rounds"] += 1
+        V0 = prob.V
+        sj0 = dr.cell_scaled_jacobians(V0, [("hexahedron", H)])[0]
+        h = int(np.argmin(sj0))
+        v = next(int(x) for x in H[h] if prob.free_mask[x])
+        rng = np.random.default_rng(0)
+        for _ in range(100):
+            W = V0.copy()
+            W[v] += 0.05 * rng.standard_normal(3)
+            sj = dr.cell_scaled_jacobians(W, [("hexahedron", H)])[0]
+            if 0 < sj.min() < sj0.min():
+                break
+        else:
+            raise AssertionError("no lowering move found")
+        time.sleep(1.5)
+        prob.V = W
+        return {"rounds": 1, "iterations": 1, "reached": False, "min_sj": float(sj.min())}
+
+    monkeypatch.setattr(js, "joint_steps", joint)
+    monkeypatch.setattr(opt, "improve", worse)
+    P, H = structured_grid(4)
+    P[_idx(2, 2, 4), 2] -= 0.4  # an inverted hex under a boundary face
+    P[_idx(2, 2, 2)] += np.array([0.15, -0.1, 0.12])  # and a distorted interior, so that stage 2 has cells below tau
+    r = hs.repair(P, H)
+    assert seen["rounds"] >= 1 and r.success and seen["joint"], (seen, r.summary())
+    assert dr.JOINT_SECONDS + 1.0 < seen["joint"][-1] <= dr.JOINT_SECONDS + 1.5 + 1.0, seen
