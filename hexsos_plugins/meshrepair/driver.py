@@ -326,8 +326,8 @@ def repair(points, hexes, *, cells=None, method: str = "optimize", boundary: str
     time_limit : float, optional, keyword-only
         Seconds for stages 1 and 2 (default None: the untangling has UNTANGLE_SECONDS = 60, stage 2's rounds
         QUALITY_SECONDS = 30 but end QUALITY_END = 35 s after the start unless that leaves them less than
-        QUALITY_MIN_SECONDS = 5, the last vertex steps LOCAL_SECONDS = 10 and the joint steps JOINT_SECONDS = 10 plus the seconds of
-        stage 2's rounds that were undone);
+        QUALITY_MIN_SECONDS = 5, the last vertex steps LOCAL_SECONDS = 10 and the joint steps JOINT_SECONDS = 10
+        plus the seconds of stage 2's rounds that were undone);
         certification always runs. Counted from the start, after the compiled loops are loaded (compiled the first
         time: ``stats["load_seconds"]``).
     feature_angle : float, keyword-only

@@ -153,8 +153,8 @@ def joint_steps(V, H, movable, *, boundary=None, deadline=None, target=None, ban
     move within it, the other boundary vertices stay) or None (no constraint but ``movable``); ``target``: stop
     once the minimum reaches it; ``max_hexes``: the hexes of a program, at most (None: :data:`MAX_HEXES`, more on a
     larger plateau, :data:`PLATEAU`). Returns (V', info) with ``steps`` (kept), ``part_steps`` (of them, kept at a
-    part of the program's move, :data:`STEP_PARTS`), ``tries`` (programs), ``hexes`` (the cap on a program's hexes at the end),
-    ``min_before``, ``min_after``."""
+    part of the program's move, :data:`STEP_PARTS`), ``tries`` (programs), ``hexes`` (the cap on a program's hexes
+    at the end), ``min_before``, ``min_after``."""
     from scipy.optimize import linprog
     from scipy.sparse import coo_matrix, diags
 
@@ -167,7 +167,8 @@ def joint_steps(V, H, movable, *, boundary=None, deadline=None, target=None, ban
     G = np.ascontiguousarray(G)
     proj, _, _, _, size = vertex_freedoms(V, H, movable, boundary, 1.0)
     cell_sj = lo.cell_minima(V, H, G, float(factor))
-    info = {"steps": 0, "part_steps": 0, "tries": 0, "hexes": 0, "min_before": float(cell_sj.min()) if cell_sj.size else np.inf}
+    info = {"steps": 0, "part_steps": 0, "tries": 0, "hexes": 0,
+            "min_before": float(cell_sj.min()) if cell_sj.size else np.inf}
     if H.shape[0] == 0:
         info["min_after"] = info["min_before"]
         return V, info
