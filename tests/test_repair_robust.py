@@ -280,6 +280,22 @@ def test_algorithm_2s_hexes_with_a_negative_bernstein_coefficient_are_lifted_bef
     assert not r0.stats["untangled"] and "local" not in [e["stage"] for e in r0.history]
 
 
+def _joint_seconds(monkeypatch):
+    """A list that collects, from here on, the seconds each joint-steps call is handed (its deadline - now)."""
+    import time
+
+    from hexsos_plugins.meshrepair import jointsteps as js
+
+    seen, real = [], js.joint_steps
+
+    def joint(*a, deadline=None, **k):
+        seen.append(deadline - time.perf_counter())
+        return real(*a, deadline=deadline, **k)
+
+    monkeypatch.setattr(js, "joint_steps", joint)
+    return seen
+
+
 def test_the_last_stages_share_what_is_left_of_the_repairs_seconds(monkeypatch):
     """Without a time limit the vertex steps after stage 2 and the joint steps get at most what is left of
     ``REPAIR_SECONDS`` from the repair's start (the vertex steps half of it), at least their minimum: after a long
@@ -288,21 +304,15 @@ def test_the_last_stages_share_what_is_left_of_the_repairs_seconds(monkeypatch):
     import time
 
     from hexsos_plugins.meshrepair import driver as dr
-    from hexsos_plugins.meshrepair import jointsteps as js
     from hexsos_plugins.meshrepair import localopt as lo
 
-    seen = {"local": [], "joint": []}
-    real_joint, real_sweeps = js.joint_steps, lo.local_sweeps
-
-    def joint(*a, deadline=None, **k):
-        seen["joint"].append(deadline - time.perf_counter())
-        return real_joint(*a, deadline=deadline, **k)
+    seen = {"local": [], "joint": _joint_seconds(monkeypatch)}
+    real_sweeps = lo.local_sweeps
 
     def sweeps(*a, deadline=None, **k):
         seen["local"].append((k.get("band_below", -np.inf), deadline - time.perf_counter()))
         return real_sweeps(*a, deadline=deadline, **k)
 
-    monkeypatch.setattr(js, "joint_steps", joint)
     monkeypatch.setattr(lo, "local_sweeps", sweeps)
     P, H = structured_grid(4)
     P[_idx(2, 2, 4), 2] -= 0.4  # an inverted hex under a boundary face
@@ -331,15 +341,9 @@ def test_rounds_undone_give_their_seconds_to_the_joint_steps(monkeypatch):
     import time
 
     from hexsos_plugins.meshrepair import driver as dr
-    from hexsos_plugins.meshrepair import jointsteps as js
     from hexsos_plugins.meshrepair import optimize as opt
 
-    seen = {"joint": [], "rounds": 0}
-    real_joint = js.joint_steps
-
-    def joint(*a, deadline=None, **k):
-        seen["joint"].append(deadline - time.perf_counter())
-        return real_joint(*a, deadline=deadline, **k)
+    seen = {"joint": _joint_seconds(monkeypatch), "rounds": 0}
 
     def worse(prob, **k):
         seen["rounds"] += 1
@@ -360,7 +364,6 @@ def test_rounds_undone_give_their_seconds_to_the_joint_steps(monkeypatch):
         prob.V = W
         return {"rounds": 1, "iterations": 1, "reached": False, "min_sj": float(sj.min())}
 
-    monkeypatch.setattr(js, "joint_steps", joint)
     monkeypatch.setattr(opt, "improve", worse)
     P, H = structured_grid(4)
     P[_idx(2, 2, 4), 2] -= 0.4  # an inverted hex under a boundary face
