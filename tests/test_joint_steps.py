@@ -218,3 +218,46 @@ def test_a_plateau_larger_than_a_program_grows_the_program():
     assert grown["hexes"] >= 72 and grown["min_after"] > 0.95, grown
     assert sample_scaled_jacobians(J[H], "hexahedron").min() == pytest.approx(grown["min_after"], abs=1e-12)
     assert _certified(J, H)
+
+
+def test_past_their_budget_the_steps_go_on_while_they_gain(monkeypatch):
+    """``go_on=(soft, window, gain)``: past ``soft`` the steps go on only while the minimum rose by at least ``gain``
+    over the last ``window`` seconds. On a clock that moves one second a reading (two readings a program), on the
+    sheared 6^3 grid: a gain no step reaches stops them at the first reading past ``soft``, where a run cut at as
+    many programs ends, bit for bit; a gain of 0 never stops them (the minimum never falls): the run without
+    ``go_on``; a gain between stops them at the first program whose last three gained less than it, and not
+    before, and they then end as the run cut there."""
+    from types import SimpleNamespace
+
+    from hexsos_plugins.meshrepair import jointsteps
+
+    P, H = structured_grid(6, 6, 6)
+    h = P[:, 1].max() / 6
+    Q = P.copy()
+    Q[:, 0] += 0.6 * np.clip(P[:, 1], 3 * h, 5 * h)
+    mv = np.ones(len(Q), dtype=bool)
+
+    def run(go_on=None, max_tries=40):
+        ticks = iter(range(1, 10 ** 6))
+        monkeypatch.setattr(jointsteps, "time", SimpleNamespace(perf_counter=lambda: float(next(ticks))))
+        return joint_steps(Q, H, mv, max_tries=max_tries, go_on=go_on)
+
+    # readings: 1 at the start, then 2 + 2i before program i and 3 + 2i after it
+    full, finfo = run()
+    assert finfo["tries"] > 8 and finfo["past_soft"] == 0.0
+    never, ninfo = run(go_on=(5.0, 6.0, 1.0))  # past 5 at the reading before program 2
+    cut, _ = run(max_tries=2)
+    assert ninfo["tries"] == 2 and np.array_equal(never, cut)
+    always, ainfo = run(go_on=(5.0, 6.0, 0.0))
+    assert ainfo["tries"] == finfo["tries"] and np.array_equal(always, full) and ainfo["past_soft"] > 0
+
+    def min_after(k):  # the minimum after k programs
+        return run(max_tries=k)[1]["min_after"]
+
+    gain = 1e-3
+    mid, minfo = run(go_on=(5.0, 6.0, gain))
+    k = minfo["tries"]
+    assert 2 < k < finfo["tries"], (k, finfo)
+    # stopped before program k: the three before it gained less than ``gain``; at the reading before, they had not
+    assert min_after(k) - min_after(k - 3) < gain <= min_after(k - 1) - min_after(k - 4)
+    assert np.array_equal(mid, run(max_tries=k)[0])

@@ -19,6 +19,7 @@ valid, with no edge collapsed; the certificate is still the kernel's.
 
 from __future__ import annotations
 
+import bisect
 import time
 
 import numpy as np
@@ -146,15 +147,18 @@ def binding_rows(A, b, box, n_t):
 
 
 def joint_steps(V, H, movable, *, boundary=None, deadline=None, target=None, band_below=BAND_BELOW, span=SPAN,
-                max_hexes=None, max_tries=500):
+                max_hexes=None, max_tries=500, go_on=None):
     """Raise the minimum scaled Jacobian of hexes H at V by joint moves of the vertices of the worst hexes (module
     docstring). ``movable`` (N,) bool; ``boundary``: a :class:`hexsos_plugins.meshrepair.boundary.BoundaryModel`
     with a band (its vertices of hexes below ``band_below`` or within twice ``span`` of the minimum at the start
     move within it, the other boundary vertices stay) or None (no constraint but ``movable``); ``target``: stop
     once the minimum reaches it; ``max_hexes``: the hexes of a program, at most (None: :data:`MAX_HEXES`, more on a
-    larger plateau, :data:`PLATEAU`). Returns (V', info) with ``steps`` (kept), ``part_steps`` (of them, kept at a
-    part of the program's move, :data:`STEP_PARTS`), ``tries`` (programs), ``hexes`` (the cap on a program's hexes
-    at the end), ``min_before``, ``min_after``."""
+    larger plateau, :data:`PLATEAU`); ``go_on``: (``soft``, ``window``, ``gain``): past the time ``soft``
+    (``time.perf_counter()``) the steps go on, up to ``deadline``, only while the minimum rose by at least ``gain``
+    over the last ``window`` seconds (None: they go on to ``deadline``). Returns (V', info) with ``steps`` (kept),
+    ``part_steps`` (of them, kept at a part of the program's move, :data:`STEP_PARTS`), ``tries`` (programs),
+    ``hexes`` (the cap on a program's hexes at the end), ``min_before``, ``min_after``, ``past_soft`` (seconds the
+    steps went on past ``soft``, 0 without ``go_on``)."""
     from scipy.optimize import linprog
     from scipy.sparse import coo_matrix, diags
 
@@ -197,12 +201,22 @@ def joint_steps(V, H, movable, *, boundary=None, deadline=None, target=None, ban
     delta = DELTA
     gains = []
     k_now = MAX_HEXES if max_hexes is None else int(max_hexes)
+    clock, reached = [time.perf_counter()], [info["min_before"]]  # the minimum after each program, and when
+    info["past_soft"] = 0.0
     while info["tries"] < max_tries and delta >= DELTA_MIN:
-        if deadline is not None and time.perf_counter() > deadline:
+        now = time.perf_counter()
+        if deadline is not None and now > deadline:
             break
         m = float(cell_sj.min())
         if target is not None and m >= target:
             break
+        if go_on is not None and now > go_on[0]:
+            # past the soft end: on while the last ``window`` seconds gained at least ``gain``
+            soft, window, gain = go_on
+            then = reached[max(bisect.bisect_right(clock, now - window) - 1, 0)]
+            if m - then < gain:
+                break
+            info["past_soft"] = now - soft
         if max_hexes is None:
             # as many as the plateau at the minimum, if more (and never fewer than before in these steps)
             k_now = max(k_now, min(PLATEAU_HEXES, int(np.count_nonzero(cell_sj < m + PLATEAU))))
@@ -326,6 +340,8 @@ def joint_steps(V, H, movable, *, boundary=None, deadline=None, target=None, ban
         # the trust region grows after a whole step kept and halves otherwise (also when a part of it was kept)
         delta = min(1.5 * delta, DELTA_MAX) if full else 0.5 * delta
         gains.append(float(cell_sj.min()) - m)
+        clock.append(time.perf_counter())
+        reached.append(float(cell_sj.min()))
         if len(gains) >= PATIENCE and sum(gains[-PATIENCE:]) < MIN_GAIN:
             break
     info["hexes"] = int(k_now)
