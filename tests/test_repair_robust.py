@@ -280,17 +280,22 @@ def test_algorithm_2s_hexes_with_a_negative_bernstein_coefficient_are_lifted_bef
     assert not r0.stats["untangled"] and "local" not in [e["stage"] for e in r0.history]
 
 
-def _joint_seconds(monkeypatch):
-    """A list that collects, from here on, the seconds each joint-steps call is handed (its deadline - now)."""
+def _joint_seconds(monkeypatch, calls=None):
+    """A list that collects, from here on, the seconds each joint-steps call is handed: its budget (the soft end of
+    ``go_on`` where given, else its deadline) - now. ``calls`` (a list), if given, collects each call's deadline -
+    now and ``go_on``."""
     import time
 
     from hexsos_plugins.meshrepair import jointsteps as js
 
     seen, real = [], js.joint_steps
 
-    def joint(*a, deadline=None, **k):
-        seen.append(deadline - time.perf_counter())
-        return real(*a, deadline=deadline, **k)
+    def joint(*a, deadline=None, go_on=None, **k):
+        now = time.perf_counter()
+        seen.append((deadline if go_on is None else go_on[0]) - now)
+        if calls is not None:
+            calls.append((deadline - now, go_on))
+        return real(*a, deadline=deadline, go_on=go_on, **k)
 
     monkeypatch.setattr(js, "joint_steps", joint)
     return seen
@@ -300,13 +305,17 @@ def test_the_last_stages_share_what_is_left_of_the_repairs_seconds(monkeypatch):
     """Without a time limit the vertex steps after stage 2 and the joint steps get at most what is left of
     ``REPAIR_SECONDS`` from the repair's start (the vertex steps half of it), at least their minimum: after a long
     untangling (here: ``REPAIR_SECONDS`` = 0) they trim to their minimums; otherwise, and with a time limit, they
-    get their own budgets. Read from the deadlines the two stages are handed."""
+    get their own budgets. Without a time limit the joint steps may go on past theirs while they gain
+    (``JOINT_WINDOW``, ``JOINT_GAIN``), up to ``REPAIR_SECONDS`` from the start (their deadline; when that has
+    passed, their budget's end); with one, their budget is their deadline. Read from the deadlines the two stages
+    are handed."""
     import time
 
     from hexsos_plugins.meshrepair import driver as dr
     from hexsos_plugins.meshrepair import localopt as lo
 
-    seen = {"local": [], "joint": _joint_seconds(monkeypatch)}
+    calls = []
+    seen = {"local": [], "joint": _joint_seconds(monkeypatch, calls)}
     real_sweeps = lo.local_sweeps
 
     def sweeps(*a, deadline=None, **k):
@@ -331,6 +340,13 @@ def test_the_last_stages_share_what_is_left_of_the_repairs_seconds(monkeypatch):
         else:
             assert dr.LOCAL_SECONDS - 0.5 < local_s <= dr.LOCAL_SECONDS
             assert dr.JOINT_SECONDS - 0.5 < joint_s <= dr.JOINT_SECONDS
+        hard, go_on = calls[-1]
+        if limit is None:
+            assert go_on is not None and go_on[1:] == (dr.JOINT_WINDOW, dr.JOINT_GAIN)
+            # the shared end; where it has passed (trimmed), the budget's end
+            assert (hard == pytest.approx(joint_s, abs=1e-3)) if trimmed else (hard > seconds - 60.0)
+        else:
+            assert go_on is None and hard == pytest.approx(joint_s, abs=1e-3)
 
 
 def test_rounds_undone_give_their_seconds_to_the_joint_steps(monkeypatch):

@@ -65,7 +65,8 @@ def add_parser(subparsers):
                         "it, feature corners fixed)")
     p.add_argument("--time-limit", type=float, default=None, metavar="S",
                    help="seconds for untangling and quality (default: the untangling 60 s, the quality rounds 30 s, the "
-                        "last vertex steps 10 s); the certificate always runs")
+                        "last vertex steps 10 s, the joint steps 10 s and on while they gain, the last stages within "
+                        "50 s of the start); the certificate always runs")
     p.add_argument("--max-iter", type=int, default=None,
                    help="most outer steps per stage (optimize: default 60 untangling steps, 80 quality rounds; "
                         "paper: most outer iterations, default 100)")

@@ -91,6 +91,13 @@ LOCAL_SECONDS = 10.0
 #: start): kitten_with_bifur_3's 10.9 s of rounds are undone, and its joint steps, still gaining at 10 s, reached
 #: 0.446 in 20.7 s where they reached 0.419 in 10 (one run each, 2026-12-04; the repair 35.3 s against 23.6)
 JOINT_SECONDS = 10.0
+#: Without a time limit the joint steps go on past that budget while they gain: as long as the minimum rose by at
+#: least JOINT_GAIN over the last JOINT_WINDOW seconds, up to REPAIR_SECONDS from the repair's start. At their 10 s
+#: the bunny, cat_2 and Dolphin_2 had gained 0.005-0.025 over the 5 s before, and kitten_with_bifur_3 0.009 at its
+#: 21 s; let run, the first three ended by themselves at 15-21 s, 0.003-0.012 higher, kitten 0.019 higher at 45 s
+#: (one run each, 2026-12-05)
+JOINT_WINDOW = 5.0
+JOINT_GAIN = 0.002
 #: Without a time limit the vertex steps after stage 2 and the joint steps also share what is left of this many
 #: seconds from the repair's start (the vertex steps at most half of it), each keeping its minimum: after a long
 #: untangling they trim, so that a stress test ends within about a minute (the 34,880-hex kitten_with_bifur_3
@@ -327,9 +334,10 @@ def repair(points, hexes, *, cells=None, method: str = "optimize", boundary: str
         Seconds for stages 1 and 2 (default None: the untangling has UNTANGLE_SECONDS = 60, stage 2's rounds
         QUALITY_SECONDS = 30 but end QUALITY_END = 35 s after the start unless that leaves them less than
         QUALITY_MIN_SECONDS = 5, the last vertex steps LOCAL_SECONDS = 10 and the joint steps JOINT_SECONDS = 10
-        plus the seconds of stage 2's rounds that were undone);
-        certification always runs. Counted from the start, after the compiled loops are loaded (compiled the first
-        time: ``stats["load_seconds"]``).
+        plus the seconds of stage 2's rounds that were undone, then on while they gain JOINT_GAIN = 0.002 in
+        JOINT_WINDOW = 5 s, the last stages within REPAIR_SECONDS = 50 from the start); certification always runs.
+        Counted from the start, after the compiled loops are loaded (compiled the first time:
+        ``stats["load_seconds"]``).
     feature_angle : float, keyword-only
         ``boundary="slide"``: boundary edges whose faces' normals differ by more than this (degrees) are
         feature edges. Default 45.
@@ -654,16 +662,22 @@ class _Optimize:
         return min(cap, max(floor, part * left))
 
     def _joint(self, V, movable, bm, others, deadline):
-        """Stage 2c (:func:`hexsos_plugins.meshrepair.jointsteps.joint_steps`) on the hexes, for at most
-        ``JOINT_SECONDS`` (:meth:`_share`): the vertices the last vertex steps could move (feature corners within
-        the band), those of other cells staying; boundary vertices move within the band (without one they stay)."""
+        """Stage 2c (:func:`hexsos_plugins.meshrepair.jointsteps.joint_steps`) on the hexes, for ``JOINT_SECONDS``
+        and the seconds of stage 2's undone rounds (:meth:`_share`), without a time limit then on while they gain
+        (``JOINT_WINDOW``, ``JOINT_GAIN``) up to ``REPAIR_SECONDS`` from the start: the vertices the last vertex
+        steps could move (feature corners within the band), those of other cells staying; boundary vertices move
+        within the band (without one they stay)."""
         from .jointsteps import joint_steps
 
         mv = self._hex_movable(movable, others, True)
         end = time.perf_counter() + self._share(JOINT_SECONDS + self.undone_seconds, JOINT_MIN_SECONDS)
-        W, info = joint_steps(V, self.H, mv, boundary=bm, deadline=end if deadline is None else min(deadline, end),
-                              target=self.min_sj)
+        if deadline is None:  # no time limit: on past ``end`` while they gain, to the shared end
+            W, info = joint_steps(V, self.H, mv, boundary=bm, deadline=max(end, self.t0 + REPAIR_SECONDS),
+                                  target=self.min_sj, go_on=(end, JOINT_WINDOW, JOINT_GAIN))
+        else:
+            W, info = joint_steps(V, self.H, mv, boundary=bm, deadline=min(deadline, end), target=self.min_sj)
         self.local_info["joint_steps"] = info["steps"]
+        self.local_info["joint_past_budget"] = info["past_soft"]
         if not info["steps"]:
             return V
         self._step("joint", W)
@@ -1083,6 +1097,7 @@ class _Optimize:
             "quality_iterations": int(info2.get("iterations", 0)), "fallback_used": used_fallback,
             "local_sweeps": int(self.local_info.get("sweeps", 0)), "local_steps": int(self.local_info.get("steps", 0)),
             "joint_steps": int(self.local_info.get("joint_steps", 0)),
+            "joint_past_budget": float(self.local_info.get("joint_past_budget", 0.0)),
             "outer_iterations": len(self.history) - 1, "sos_steps": int(sum(h["sos_steps"] for h in self.history)),
             "projection_steps": 0, "sdp_solves": 0,
             "max_displacement": float(norm.max()) if N else 0.0,
