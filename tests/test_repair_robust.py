@@ -347,6 +347,11 @@ def test_the_last_stages_share_what_is_left_of_the_repairs_seconds(monkeypatch):
             assert (hard == pytest.approx(joint_s, abs=1e-3)) if trimmed else (hard > seconds - 60.0)
         else:
             assert go_on is None and hard == pytest.approx(joint_s, abs=1e-3)
+    # the text report says how long the joint steps went on past their budget, when they did
+    assert "past their budget" not in r.summary()
+    r.stats["joint_past_budget"] = 1.25
+    assert (f"joint steps {r.stats['stage_seconds']['joint']:.2f} s ({r.stats['joint_steps']} kept) (1.25 s of them "
+            "past their budget, while they gained)") in r.summary()
 
 
 def test_rounds_undone_give_their_seconds_to_the_joint_steps(monkeypatch):

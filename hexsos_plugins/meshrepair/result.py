@@ -116,7 +116,7 @@ def summary_optimize(res):
            if s.get("quality_rounds_undone") else "") + ")"
         + (f", vertex steps {st['local']:.2f} s ({s.get('local_steps', 0)} steps)" if "local" in st else "")
         + (f", joint steps {st['joint']:.2f} s ({s.get('joint_steps', 0)} kept)" if "joint" in st else "")
-        + (f" of which {s['joint_past_budget']:.2f} s past their budget, still gaining"
+        + (f" ({s['joint_past_budget']:.2f} s of them past their budget, while they gained)"
            if "joint" in st and s.get("joint_past_budget") else "")
         + f", certify {st.get('certify', 0):.2f} s"
         + (f", fallback (paper) {st['fallback']:.2f} s" if "fallback" in st else ""),
