@@ -247,9 +247,10 @@ def test_past_their_budget_the_steps_go_on_while_they_gain(monkeypatch):
     assert finfo["tries"] > 8 and finfo["past_soft"] == 0.0
     never, ninfo = run(go_on=(5.0, 6.0, 1.0))  # past 5 at the reading before program 2
     cut, _ = run(max_tries=2)
-    assert ninfo["tries"] == 2 and np.array_equal(never, cut)
+    assert ninfo["tries"] == 2 and np.array_equal(never, cut) and ninfo["past_soft"] == 0.0  # ended at 5
     always, ainfo = run(go_on=(5.0, 6.0, 0.0))
-    assert ainfo["tries"] == finfo["tries"] and np.array_equal(always, full) and ainfo["past_soft"] > 0
+    assert ainfo["tries"] == finfo["tries"] and np.array_equal(always, full)
+    assert ainfo["past_soft"] == 2 * ainfo["tries"] + 1 - 5.0  # from 5 to the end of the last program
 
     def min_after(k):  # the minimum after k programs
         return run(max_tries=k)[1]["min_after"]
@@ -260,4 +261,4 @@ def test_past_their_budget_the_steps_go_on_while_they_gain(monkeypatch):
     assert 2 < k < finfo["tries"], (k, finfo)
     # stopped before program k: the three before it gained less than ``gain``; at the reading before, they had not
     assert min_after(k) - min_after(k - 3) < gain <= min_after(k - 1) - min_after(k - 4)
-    assert np.array_equal(mid, run(max_tries=k)[0])
+    assert np.array_equal(mid, run(max_tries=k)[0]) and minfo["past_soft"] == 2 * k + 1 - 5.0

@@ -157,8 +157,8 @@ def joint_steps(V, H, movable, *, boundary=None, deadline=None, target=None, ban
     (``time.perf_counter()``) the steps go on, up to ``deadline``, only while the minimum rose by at least ``gain``
     over the last ``window`` seconds (None: they go on to ``deadline``). Returns (V', info) with ``steps`` (kept),
     ``part_steps`` (of them, kept at a part of the program's move, :data:`STEP_PARTS`), ``tries`` (programs),
-    ``hexes`` (the cap on a program's hexes at the end), ``min_before``, ``min_after``, ``past_soft`` (seconds the
-    steps went on past ``soft``, 0 without ``go_on``)."""
+    ``hexes`` (the cap on a program's hexes at the end), ``min_before``, ``min_after``, ``past_soft`` (seconds from
+    ``soft`` to the end of the last program, 0 if it ended before or without ``go_on``)."""
     from scipy.optimize import linprog
     from scipy.sparse import coo_matrix, diags
 
@@ -216,7 +216,6 @@ def joint_steps(V, H, movable, *, boundary=None, deadline=None, target=None, ban
             then = reached[max(bisect.bisect_right(clock, now - window) - 1, 0)]
             if m - then < gain:
                 break
-            info["past_soft"] = now - soft
         if max_hexes is None:
             # as many as the plateau at the minimum, if more (and never fewer than before in these steps)
             k_now = max(k_now, min(PLATEAU_HEXES, int(np.count_nonzero(cell_sj < m + PLATEAU))))
@@ -345,5 +344,7 @@ def joint_steps(V, H, movable, *, boundary=None, deadline=None, target=None, ban
         if len(gains) >= PATIENCE and sum(gains[-PATIENCE:]) < MIN_GAIN:
             break
     info["hexes"] = int(k_now)
+    if go_on is not None:  # until the last program's end
+        info["past_soft"] = max(clock[-1] - go_on[0], 0.0)
     info["min_after"] = float(cell_sj.min())
     return V, info
