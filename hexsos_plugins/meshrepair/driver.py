@@ -672,10 +672,10 @@ class _Optimize:
         mv = self._hex_movable(movable, others, True)
         end = time.perf_counter() + self._share(JOINT_SECONDS + self.undone_seconds, JOINT_MIN_SECONDS)
         if deadline is None:  # no time limit: on past ``end`` while they gain, to the shared end
-            W, info = joint_steps(V, self.H, mv, boundary=bm, deadline=max(end, self.t0 + REPAIR_SECONDS),
-                                  target=self.min_sj, go_on=(end, JOINT_WINDOW, JOINT_GAIN))
+            deadline, go_on = max(end, self.t0 + REPAIR_SECONDS), (end, JOINT_WINDOW, JOINT_GAIN)
         else:
-            W, info = joint_steps(V, self.H, mv, boundary=bm, deadline=min(deadline, end), target=self.min_sj)
+            deadline, go_on = min(deadline, end), None
+        W, info = joint_steps(V, self.H, mv, boundary=bm, deadline=deadline, target=self.min_sj, go_on=go_on)
         self.local_info["joint_steps"] = info["steps"]
         self.local_info["joint_past_budget"] = info["past_soft"]
         if not info["steps"]:

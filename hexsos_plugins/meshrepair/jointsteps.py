@@ -171,7 +171,7 @@ def joint_steps(V, H, movable, *, boundary=None, deadline=None, target=None, ban
     G = np.ascontiguousarray(G)
     proj, _, _, _, size = vertex_freedoms(V, H, movable, boundary, 1.0)
     cell_sj = lo.cell_minima(V, H, G, float(factor))
-    info = {"steps": 0, "part_steps": 0, "tries": 0, "hexes": 0,
+    info = {"steps": 0, "part_steps": 0, "tries": 0, "hexes": 0, "past_soft": 0.0,
             "min_before": float(cell_sj.min()) if cell_sj.size else np.inf}
     if H.shape[0] == 0:
         info["min_after"] = info["min_before"]
@@ -199,10 +199,8 @@ def joint_steps(V, H, movable, *, boundary=None, deadline=None, target=None, ban
         off[bidx] = np.sqrt(((V[bidx] - ref[bidx]) ** 2).sum(axis=1))
 
     delta = DELTA
-    gains = []
     k_now = MAX_HEXES if max_hexes is None else int(max_hexes)
     clock, reached = [time.perf_counter()], [info["min_before"]]  # the minimum after each program, and when
-    info["past_soft"] = 0.0
     while info["tries"] < max_tries and delta >= DELTA_MIN:
         now = time.perf_counter()
         if deadline is not None and now > deadline:
@@ -338,10 +336,10 @@ def joint_steps(V, H, movable, *, boundary=None, deadline=None, target=None, ban
                     break
         # the trust region grows after a whole step kept and halves otherwise (also when a part of it was kept)
         delta = min(1.5 * delta, DELTA_MAX) if full else 0.5 * delta
-        gains.append(float(cell_sj.min()) - m)
         clock.append(time.perf_counter())
         reached.append(float(cell_sj.min()))
-        if len(gains) >= PATIENCE and sum(gains[-PATIENCE:]) < MIN_GAIN:
+        # each program's gain is the difference of two minima in a row
+        if len(reached) > PATIENCE and sum(np.diff(reached[-1 - PATIENCE:])) < MIN_GAIN:
             break
     info["hexes"] = int(k_now)
     if go_on is not None:  # until the last program's end
