@@ -138,6 +138,51 @@ def test_signs_inside_the_rounding_bound_are_decided_exactly():
     assert r.min_det[1] <= 0 and r.min_det[2] == 0.0
 
 
+def test_coincident_nodes_decided_at_the_corners_as_the_full_exact_decision_decides(monkeypatch):
+    """A hex with two nodes at one point is decided from its corners' exact determinants (integers over a power of
+    two) when a corner is <= 0, without the 27 coefficients: the same status, witness, value and corner minimum, as
+    rationals, as the 27 exact coefficients give (the least vertex coefficient, the first of the least), on
+    adversarial hexes (nodes merged, scales 1e-30..1e30, corners exactly 0 and within rounding of 0); the full
+    decision where no node coincides or every corner is positive."""
+    from hexsos_plugins.cells.jacobian import space
+    from hexsos_plugins.kernel import exact
+
+    sp = space("hexahedron")
+    vidx = [int(v) for v in sp.vertex_idx]
+    full_calls = []
+    coefficients = exact.exact_coefficients
+    monkeypatch.setattr(exact, "exact_coefficients", lambda X, name: full_calls.append(1) or coefficients(X, name))
+    rng = np.random.default_rng(7)
+    quick = 0
+    for trial in range(300):
+        X = unit_cube() + 0.3 * rng.normal(size=(8, 3))
+        for _ in range(int(rng.integers(0, 4))):
+            i, j = rng.choice(8, 2, replace=False)
+            X[i] = X[j]
+        if trial % 3 == 0:  # a corner within rounding of 0, not at it
+            X[4, 2] = X[0, 2] + 2.0**-60
+        X = X * 10.0 ** float(rng.integers(-30, 31))
+        coef = coefficients(X, "hexahedron")
+        least = min(vidx, key=lambda v: coef[v])
+        before = len(full_calls)
+        st, lower, witness, value, corner = exact.decide(X, "hexahedron")
+        assert corner == min(coef[int(j)] for j in sp.corner_idx)
+        if np.unique(X, axis=0).shape[0] < 8 and coef[least] <= 0:
+            assert len(full_calls) == before  # decided at the corners
+            quick += 1
+            assert st == 0 and lower is None and value == coef[least]
+            assert np.array_equal(witness, sp.ctrl[least])
+        else:
+            assert len(full_calls) == before + 1
+    assert quick > 100
+    # through the pipeline: the hex with its corner's edge of no length is invalid, decided exactly, det J 0 there
+    cube = unit_cube()
+    cube[1] = cube[0]
+    r = _check(cube[None])
+    assert r.status.tolist() == [0] and r.method_names()[0] == "exact" and r.min_det[0] == 0.0
+    assert r.argmin[0].tolist() in ([0.0, 0.0, 0.0], [1.0, 0.0, 0.0])
+
+
 def test_open_bracket_with_failed_solver_stays_undecided():
     # valid hexes whose bracket is still open after one level of subdivision
     X = random_hexes(4000, sigma=0.3, seed=53)
