@@ -4,6 +4,7 @@ and Gmsh's own untangler, on generated meshes and the paper's bunny.
     python -m comparison.bench_repair [--quick] [--no-gmsh] [--json OUT.json] [--samples] [--table1]
     python -m comparison.bench_repair --published [--local] [--mesh REL ...] [--json OUT.json]
     python -m comparison.bench_repair --published --starts N [--mesh REL ...]
+    python -m comparison.bench_repair --published --perturbed | --scattered [--mesh REL ...]
     python -m comparison.bench_repair --subdivided [--jobs N]
     python -m comparison.bench_repair --corner-loops [--mesh REL ...]
 
@@ -22,6 +23,11 @@ percentile, mean) before / after, the Hausdorff distance of the boundary to the 
 bounding-box diagonal), the largest vertex move (% of the diagonal), seconds. Gmsh 4.15's
 ``optimize("UntangleMeshGeometry", force=True)`` runs on a discrete model (boundary quads as a discrete
 surface, kept fixed), on meshes up to ``--gmsh-max-hexes``, its result checked by our kernel.
+
+``--perturbed``: the same meshes with every interior vertex moved by up to 1.5 and 3 edge lengths (HexOpt's stress
+tests); ``--scattered``: with every interior vertex at the centroid, and anywhere in the bounding box
+(:func:`comparison.stress.scatter_interior`), the column "harmonic start" saying whether the untangling started
+from the sweeps' fixed point (:func:`hexsos_plugins.meshrepair.driver.harmonic_untangle`).
 
 ``--subdivided``: the default repair on Gmsh's all-hex meshes of CAD solids (tetrahedra split into hexes, singular
 edges everywhere; :func:`comparison.stress.subdivided_solid`) with a share of their boundary vertices slid along the
@@ -225,6 +231,31 @@ def perturbed(names=None, amps=(1.5, 3.0), jobs=0):
             print(f"| {name} | {len(m.hexes):,} | {amp:g} | "
                   f"{r.stats['invalid_before'] + r.stats['undecided_before']:,} -> "
                   f"{r.stats['invalid_after'] + r.stats['undecided_after']:,} | {'yes' if r.success else 'NO'} | "
+                  f"{r.stats['min_sj_after']:.3f} / {r.stats['p1_sj_after']:.3f} / {r.stats['mean_sj_after']:.3f} | "
+                  f"{r.stats['edge_ratio_after']:.4f} | {_stage_seconds(r.stats['stage_seconds'])} / {t:.1f} |",
+                  flush=True)
+
+
+def scattered(names=None, wheres=("centroid", "box"), jobs=0):
+    """The default repair on the published meshes with every interior vertex at the centroid, or anywhere in the
+    bounding box (:func:`comparison.stress.scatter_interior`, seed 0): nothing of the interior kept but its
+    connectivity."""
+    from comparison.stress import scatter_interior
+
+    print("| mesh | hexes | interior vertices | not valid before -> after | certified | harmonic start | "
+          "SJ after min / p1 / mean | shortest / longest edge of a hex, least | "
+          "seconds: untangle / quality / vertex steps / joint steps / certify / total |"
+          "\n|---|---|---|---|---|---|---|---|---|")
+    for name, m in _published_meshes(names):
+        for where in wheres:
+            P = scatter_interior(m.points, m.hexes, where=where, seed=0)
+            t0 = time.perf_counter()
+            r = repair(P, m.hexes, jobs=jobs)  # 0: every core, as `hexsos repair`
+            t = time.perf_counter() - t0
+            print(f"| {name} | {len(m.hexes):,} | {'at the centroid' if where == 'centroid' else 'anywhere in the box'} | "
+                  f"{r.stats['invalid_before'] + r.stats['undecided_before']:,} -> "
+                  f"{r.stats['invalid_after'] + r.stats['undecided_after']:,} | {'yes' if r.success else 'NO'} | "
+                  f"{'yes' if r.stats['harmonic_start'] else 'no'} | "
                   f"{r.stats['min_sj_after']:.3f} / {r.stats['p1_sj_after']:.3f} / {r.stats['mean_sj_after']:.3f} | "
                   f"{r.stats['edge_ratio_after']:.4f} | {_stage_seconds(r.stats['stage_seconds'])} / {t:.1f} |",
                   flush=True)
@@ -482,6 +513,9 @@ def main(argv=None):
     ap.add_argument("--perturbed", action="store_true",
                     help="--published: instead, the same meshes with every interior vertex moved by up to 1.5 and 3 "
                          "edge lengths (HexOpt's stress tests)")
+    ap.add_argument("--scattered", action="store_true",
+                    help="--published: instead, the same meshes with every interior vertex at the centroid, and "
+                         "anywhere in the bounding box")
     ap.add_argument("--jobs", type=int, default=0, metavar="N",
                     help="--published: the repair's threads (default 0: every core, as `hexsos repair`)")
     ap.add_argument("--corner-loops", action="store_true",
@@ -494,6 +528,9 @@ def main(argv=None):
         return 0
     if args.subdivided:
         subdivided(jobs=args.jobs)
+        return 0
+    if args.published and args.scattered:
+        scattered(args.mesh, jobs=args.jobs)
         return 0
     if args.published and args.perturbed:
         perturbed(args.mesh, jobs=args.jobs)

@@ -7,6 +7,9 @@ Every mesh here is generated (Gmsh through its Python API, numpy), seeded; none 
 * :func:`stress` -- a fraction of the *interior* vertices moved by a random vector of length up to
   ``amp`` x the local edge length (uniform in a ball), as the published stress tests do (interior noise, the
   boundary surface kept).
+* :func:`scatter_interior` -- every *interior* vertex at the centroid of the mesh, or anywhere in its bounding box
+  (uniform): a start that keeps nothing of the interior but its connectivity (every hex inverted or of no size but
+  those with seven boundary vertices), beyond the published stress tests.
 * :func:`single_fold` -- a Gmsh box mesh in which one boundary hex has its boundary face moved to where the
   hex stays positive at all 8 corners but folds inside, and every other hex stays valid.
 * :func:`hex_prism_block` -- an extruded square split into a quad half (hexahedra) and a
@@ -26,7 +29,7 @@ import numpy as np
 from gmsh_plugin.model import model_cells
 from hexsos_plugins.examples import gmsh_model
 
-__all__ = ["graded_solid", "stress", "single_fold", "hex_prism_block", "subdivided_solid", "slide_boundary",
+__all__ = ["graded_solid", "stress", "scatter_interior", "interior_vertices", "single_fold", "hex_prism_block", "subdivided_solid", "slide_boundary",
            "SOLIDS"]
 
 #: The solids of :func:`subdivided_solid`
@@ -84,6 +87,26 @@ def stress(P, H, *, frac: float = 0.8, amp: float = 1.0, seed: int = 0):
     d /= np.linalg.norm(d, axis=1, keepdims=True)
     r = amp * s[pick] * rng.random(pick.size) ** (1.0 / 3.0)
     P[pick] += r[:, None] * d
+    return P
+
+
+def interior_vertices(H, N):
+    """(N,) bool: the vertices of hexes H on no boundary face."""
+    return _interior(H, N)
+
+
+def scatter_interior(P, H, *, where: str = "box", seed: int = 0):
+    """A copy of P with every interior vertex at the centroid of P (``where="centroid"``) or at a uniform random
+    point of P's bounding box (``"box"``)."""
+    P = np.array(P, dtype=np.float64, copy=True)
+    inner = _interior(H, len(P))
+    if where == "centroid":
+        P[inner] = P.mean(axis=0)
+    elif where == "box":
+        lo, hi = P.min(axis=0), P.max(axis=0)
+        P[inner] = lo + np.random.default_rng(seed).random((int(inner.sum()), 3)) * (hi - lo)
+    else:
+        raise ValueError(f"where: expected 'centroid' or 'box', found {where!r}")
     return P
 
 
