@@ -220,6 +220,18 @@ def test_every_interior_vertex_anywhere_is_untangled_from_the_sweeps_fixed_point
     assert r.stats["harmonic_start"] and r.success and _certified(r.points, H)
     assert r.stats["invalid_after"] == 0 and not r.stats["fallback_used"]
     assert scaled_jacobian(r.points, H).min() > 0.3
+    # every interior vertex at one point: the cells of no size, spread valid and tiny, join the region (``also``);
+    # without them the deep interior stays a clump at the centroid, more than two rings from any bad cell
+    from hexsos_plugins.meshrepair.driver import cell_size, _spread_collapsed
+
+    C = scatter_interior(P, H, where="centroid")
+    S, collapsed = _spread_collapsed(C, [("hexahedron", H)], [cell_size(C, "hexahedron", H)], np.ones(len(C), bool))
+    assert collapsed[0].sum() > 0
+    pc = op.Problem(S, [("hexahedron", H)], [np.ones(len(H))], np.ones(len(S), bool))
+    Va, _, kept_a = harmonic_untangle(S, [("hexahedron", H)], inner, pc.bad_cells, also=collapsed)
+    Vb, _, _ = harmonic_untangle(S, [("hexahedron", H)], inner, pc.bad_cells)
+    assert kept_a and _edge_mean_residual(Va, H, inner) < 1e-7
+    assert _edge_mean_residual(Vb, H, inner) > 1e-3
     # refused where it would not halve the bad cells: a boundary fold, which no interior vertex can undo
     F, HF, _ = single_fold(4)
     pf = op.Problem(F, [("hexahedron", HF)], [np.ones(len(HF))], np.ones(len(F), bool))

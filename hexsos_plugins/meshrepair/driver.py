@@ -273,18 +273,23 @@ def smooth_untangle(V, blocks, movable, bad_cells, max_sweeps=30):
     return V, bad, kept
 
 
-def harmonic_untangle(V, blocks, movable, bad_cells, rings=HARMONIC_RINGS):
+def harmonic_untangle(V, blocks, movable, bad_cells, rings=HARMONIC_RINGS, also=None):
     """Stage 1's start where the sweeps stop short: the sweeps' fixed point at once. The ``movable`` vertices of
     the bad cells and ``rings`` rings around them go to where each is the mean of its edge neighbours, every other
     vertex held (one sparse solve: the Laplace equation with the rest as its boundary values); kept only if it
     leaves fewer than half as many bad cells (it forgets where those vertices were: a graded mesh's grading, the
-    shape of the cells a fold spares). Returns (V, bad, kept?).
+    shape of the cells a fold spares). ``also``: per block (M,) bool, cells that join the bad ones in the region
+    (the collapsed cells :func:`_spread_collapsed` made valid and tiny: left out, every interior vertex of
+    warrior_graded at one point kept a clump of them there, and 106 cells bad where the same mesh scattered over its
+    bounding box had 27). Returns (V, bad, kept?).
 
     A start with most cells inverted (every interior vertex at one point, or anywhere in the bounding box) is
     beyond the sweeps: a sweep that leaves more cells bad stops them, and 30 of them move a vertex a few edge
     lengths. Measured with every interior vertex at the centroid (1,851 of rockarm's 1,858 hexes inverted; 8,073 of
     dinopet_graded's 8,073): the untangling ran its 60 s and the paper's Algorithm 2 after it, and left 21 and 556
-    cells not valid; the solve takes 0.01-0.05 s and leaves 10 and 65 (the bunny) inverted at corners."""
+    cells not valid; the solve takes 0.01-0.05 s (2.2 s on kitten_with_bifur_3's 34,880 hexes) and leaves 10 and 56
+    inverted at corners, and both are certified, at min SJ 0.852 and 0.769 (``comparison.bench_repair --published
+    --scattered``)."""
     import scipy.sparse as sp
     from scipy.sparse.linalg import spsolve
 
@@ -295,7 +300,8 @@ def harmonic_untangle(V, blocks, movable, bad_cells, rings=HARMONIC_RINGS):
     if nbad == 0 or E.shape[0] == 0:
         return V, bad, False
     deg = np.bincount(E.ravel(), minlength=N)
-    free = np.flatnonzero(_vertices(_dilate(bad, blocks, N, rings), blocks, N) & movable & (deg > 0))
+    seed = bad if also is None else [b | a for b, a in zip(bad, also)]
+    free = np.flatnonzero(_vertices(_dilate(seed, blocks, N, rings), blocks, N) & movable & (deg > 0))
     if free.size == 0:
         return V, bad, False
     A = sp.coo_matrix((np.ones(2 * E.shape[0]), (np.r_[E[:, 0], E[:, 1]], np.r_[E[:, 1], E[:, 0]])),
@@ -321,12 +327,14 @@ def harmonic_untangle(V, blocks, movable, bad_cells, rings=HARMONIC_RINGS):
 def _spread_collapsed(V, blocks, sizes, movable):
     """Cells of no size (every vertex at one point) give the energies a zero gradient (a stationary point no
     descent leaves): their movable vertices start at the ideal cell's shape, a thousandth of the median cell size
-    across, around where they were. Returns (V, number of such cells)."""
+    across, around where they were. Returns (V, per block (M,) bool: such cells)."""
     pos = np.concatenate([s[s > 0] for s in sizes] + [np.zeros(0)])
     scale = 1e-3 * (float(np.median(pos)) if pos.size else 1.0)
     count = 0
+    masks = []
     for (name, conn), s in zip(blocks, sizes):
-        rows = np.flatnonzero(~(s > 1e-12 * scale))
+        masks.append(~(s > 1e-12 * scale))
+        rows = np.flatnonzero(masks[-1])
         if rows.size == 0:
             continue
         V = V.copy() if count == 0 else V
@@ -337,7 +345,7 @@ def _spread_collapsed(V, blocks, sizes, movable):
             mv = movable[c]
             V[c[mv]] = V[c].mean(axis=0) + scale * ideal[mv]
         count += rows.size
-    return V, count
+    return V, masks
 
 
 def _vertices(masks, blocks, N):
@@ -867,7 +875,7 @@ class _Optimize:
             # stage 1: untangle the bad cells and a few rings around them
             ts = time.perf_counter()
             V, collapsed = _spread_collapsed(V, blocks, sizes, movable)
-            info1["collapsed_cells"] = collapsed
+            info1["collapsed_cells"] = int(sum(int(c.sum()) for c in collapsed))
             full = opt.Problem(V, blocks, sizes, np.ones(N, dtype=bool))
             sizes1 = sizes  # the untangling's (below)
             bad = full.bad_cells(V)
@@ -883,7 +891,8 @@ class _Optimize:
                 if any(b.any() for b in bad):
                     # the sweeps' fixed point from the same start, where it leaves fewer bad cells than they did
                     # (it forgets the positions it replaces: warrior_graded's sweeps leave 13 of 198, it 32)
-                    W, bad_w, solved = harmonic_untangle(start, blocks, movable & interior, full.bad_cells)
+                    W, bad_w, solved = harmonic_untangle(start, blocks, movable & interior, full.bad_cells,
+                                                         also=collapsed)
                     if solved and sum(int(b.sum()) for b in bad_w) < sum(int(b.sum()) for b in bad):
                         V, bad, sweeps = smooth_untangle(W, blocks, movable & interior, full.bad_cells)
                         info1["harmonic_start"] = True
