@@ -214,26 +214,35 @@ def _stage_seconds(st):
     return parts + (f" (+ fallback {st['fallback']:.1f})" if "fallback" in st else "")
 
 
+def _start_rows(starts, column, names=None, jobs=0, harmonic=False):
+    """The default repair on the published meshes from the starts ``starts(points, hexes)`` -> [(label, P)]: one
+    row each, the start's label in ``column``."""
+    print(f"| mesh | hexes | {column} | not valid before -> after | certified | "
+          + ("harmonic start | " if harmonic else "")
+          + "SJ after min / p1 / mean | shortest / longest edge of a hex, least | "
+            "seconds: untangle / quality / vertex steps / joint steps / certify / total |\n"
+          + "|---" * (9 if harmonic else 8) + "|")
+    for name, m in _published_meshes(names):
+        for label, P in starts(m.points, m.hexes):
+            t0 = time.perf_counter()
+            r = repair(P, m.hexes, jobs=jobs)  # 0: every core, as `hexsos repair`
+            t = time.perf_counter() - t0
+            print(f"| {name} | {len(m.hexes):,} | {label} | "
+                  f"{r.stats['invalid_before'] + r.stats['undecided_before']:,} -> "
+                  f"{r.stats['invalid_after'] + r.stats['undecided_after']:,} | {'yes' if r.success else 'NO'} | "
+                  + (f"{'yes' if r.stats['harmonic_start'] else 'no'} | " if harmonic else "")
+                  + f"{r.stats['min_sj_after']:.3f} / {r.stats['p1_sj_after']:.3f} / {r.stats['mean_sj_after']:.3f} | "
+                  f"{r.stats['edge_ratio_after']:.4f} | {_stage_seconds(r.stats['stage_seconds'])} / {t:.1f} |",
+                  flush=True)
+
+
 def perturbed(names=None, amps=(1.5, 3.0), jobs=0):
     """The default repair on the published meshes perturbed as HexOpt's stress tests: every interior vertex moved
     by up to ``amp`` edge lengths (:func:`comparison.stress.stress`, seed 0 for 1.5, 1 otherwise)."""
     from comparison.stress import stress
 
-    print("| mesh | hexes | moved by (edge lengths) | not valid before -> after | certified | SJ after min / p1 / mean | "
-          "shortest / longest edge of a hex, least | seconds: untangle / quality / vertex steps / joint steps / certify / total |"
-          "\n|---|---|---|---|---|---|---|---|")
-    for name, m in _published_meshes(names):
-        for amp in amps:
-            P = stress(m.points, m.hexes, frac=1.0, amp=amp, seed=0 if amp == 1.5 else 1)
-            t0 = time.perf_counter()
-            r = repair(P, m.hexes, jobs=jobs)  # 0: every core, as `hexsos repair`
-            t = time.perf_counter() - t0
-            print(f"| {name} | {len(m.hexes):,} | {amp:g} | "
-                  f"{r.stats['invalid_before'] + r.stats['undecided_before']:,} -> "
-                  f"{r.stats['invalid_after'] + r.stats['undecided_after']:,} | {'yes' if r.success else 'NO'} | "
-                  f"{r.stats['min_sj_after']:.3f} / {r.stats['p1_sj_after']:.3f} / {r.stats['mean_sj_after']:.3f} | "
-                  f"{r.stats['edge_ratio_after']:.4f} | {_stage_seconds(r.stats['stage_seconds'])} / {t:.1f} |",
-                  flush=True)
+    _start_rows(lambda P, H: [(f"{amp:g}", stress(P, H, frac=1.0, amp=amp, seed=0 if amp == 1.5 else 1))
+                              for amp in amps], "moved by (edge lengths)", names, jobs)
 
 
 def scattered(names=None, wheres=("centroid", "box"), jobs=0):
@@ -242,23 +251,9 @@ def scattered(names=None, wheres=("centroid", "box"), jobs=0):
     connectivity."""
     from comparison.stress import scatter_interior
 
-    print("| mesh | hexes | interior vertices | not valid before -> after | certified | harmonic start | "
-          "SJ after min / p1 / mean | shortest / longest edge of a hex, least | "
-          "seconds: untangle / quality / vertex steps / joint steps / certify / total |"
-          "\n|---|---|---|---|---|---|---|---|---|")
-    for name, m in _published_meshes(names):
-        for where in wheres:
-            P = scatter_interior(m.points, m.hexes, where=where, seed=0)
-            t0 = time.perf_counter()
-            r = repair(P, m.hexes, jobs=jobs)  # 0: every core, as `hexsos repair`
-            t = time.perf_counter() - t0
-            print(f"| {name} | {len(m.hexes):,} | {'at the centroid' if where == 'centroid' else 'anywhere in the box'} | "
-                  f"{r.stats['invalid_before'] + r.stats['undecided_before']:,} -> "
-                  f"{r.stats['invalid_after'] + r.stats['undecided_after']:,} | {'yes' if r.success else 'NO'} | "
-                  f"{'yes' if r.stats['harmonic_start'] else 'no'} | "
-                  f"{r.stats['min_sj_after']:.3f} / {r.stats['p1_sj_after']:.3f} / {r.stats['mean_sj_after']:.3f} | "
-                  f"{r.stats['edge_ratio_after']:.4f} | {_stage_seconds(r.stats['stage_seconds'])} / {t:.1f} |",
-                  flush=True)
+    labels = {"centroid": "at the centroid", "box": "anywhere in the box"}
+    _start_rows(lambda P, H: [(labels[w], scatter_interior(P, H, where=w, seed=0)) for w in wheres],
+                "interior vertices", names, jobs, harmonic=True)
 
 
 #: ``--subdivided``'s cases: (solid, largest tetrahedron edge, share of the boundary vertices slid, by how many edge
