@@ -214,15 +214,17 @@ def _stage_seconds(st):
     return parts + (f" (+ fallback {st['fallback']:.1f})" if "fallback" in st else "")
 
 
-def _start_rows(starts, column, names=None, jobs=0, harmonic=False):
+def _start_rows(starts, column, names=None, jobs=0, extra=()):
     """The default repair on the published meshes from the starts ``starts(points, hexes)`` -> [(label, P)]: one
-    row each, the start's label in ``column``."""
+    row each, the start's label in ``column``; ``extra``: more columns after "certified", (header, text(result,
+    diagonal))."""
     print(f"| mesh | hexes | {column} | not valid before -> after | certified | "
-          + ("harmonic start | " if harmonic else "")
+          + "".join(f"{h} | " for h, _ in extra)
           + "SJ after min / p1 / mean | shortest / longest edge of a hex, least | "
             "seconds: untangle / quality / vertex steps / joint steps / certify / total |\n"
-          + "|---" * (9 if harmonic else 8) + "|")
+          + "|---" * (8 + len(extra)) + "|")
     for name, m in _published_meshes(names):
+        diag = float(np.linalg.norm(m.points.max(axis=0) - m.points.min(axis=0)))
         for label, P in starts(m.points, m.hexes):
             t0 = time.perf_counter()
             r = repair(P, m.hexes, jobs=jobs)  # 0: every core, as `hexsos repair`
@@ -230,7 +232,7 @@ def _start_rows(starts, column, names=None, jobs=0, harmonic=False):
             print(f"| {name} | {len(m.hexes):,} | {label} | "
                   f"{r.stats['invalid_before'] + r.stats['undecided_before']:,} -> "
                   f"{r.stats['invalid_after'] + r.stats['undecided_after']:,} | {'yes' if r.success else 'NO'} | "
-                  + (f"{'yes' if r.stats['harmonic_start'] else 'no'} | " if harmonic else "")
+                  + "".join(f"{text(r, diag)} | " for _, text in extra)
                   + f"{r.stats['min_sj_after']:.3f} / {r.stats['p1_sj_after']:.3f} / {r.stats['mean_sj_after']:.3f} | "
                   f"{r.stats['edge_ratio_after']:.4f} | {_stage_seconds(r.stats['stage_seconds'])} / {t:.1f} |",
                   flush=True)
@@ -252,8 +254,11 @@ def scattered(names=None, wheres=("centroid", "box"), jobs=0):
     from comparison.stress import scatter_interior
 
     labels = {"centroid": "at the centroid", "box": "anywhere in the box"}
+    extra = (("harmonic start", lambda r, diag: "yes" if r.stats["harmonic_start"] else "no"),
+             ("farthest boundary vertex (of diag)",
+              lambda r, diag: f"{100 * r.stats.get('boundary_max_distance', 0.0) / diag:.2f}%"))
     _start_rows(lambda P, H: [(labels[w], scatter_interior(P, H, where=w, seed=0)) for w in wheres],
-                "interior vertices", names, jobs, harmonic=True)
+                "interior vertices", names, jobs, extra)
 
 
 #: ``--subdivided``'s cases: (solid, largest tetrahedron edge, share of the boundary vertices slid, by how many edge

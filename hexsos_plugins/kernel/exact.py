@@ -109,10 +109,10 @@ def _hex_corner_decision(X, sp):
     """:func:`decide`'s answer for a trilinear hex with two nodes at the same point where a corner decides it,
     without the 27 coefficients: det J at a corner is its Bernstein coefficient there, the determinant of its three
     edges (each signed from the lower coordinate to the higher), exactly. A hex with coincident nodes often has a
-    corner with det J exactly 0 (an edge of no length), which float64 cannot settle: the collapsed starts of a stress
-    test sent thousands of such hexes here at 4 ms each (34,880-hex kitten_with_bifur_3, every interior vertex at one
-    point: 15 s). None where no node coincides with another or every corner is positive (the full decision
-    follows)."""
+    corner with det J exactly 0 (an edge of no length), which float64 cannot settle: a stress start with every
+    interior vertex of the 34,880-hex kitten_with_bifur_3 at one point sends 5,171 such hexes here, and its check took
+    5.0 s with the 27 coefficients, 0.9 s with this (the same results). None where no node coincides with another
+    or every corner is positive (the full decision follows)."""
     A = np.asarray(X, dtype=np.float64)
     if A.shape != (8, 3) or np.unique(A, axis=0).shape[0] == 8:
         return None
