@@ -29,8 +29,8 @@ import numpy as np
 from gmsh_plugin.model import model_cells
 from hexsos_plugins.examples import gmsh_model
 
-__all__ = ["graded_solid", "stress", "scatter_interior", "interior_vertices", "single_fold", "hex_prism_block", "subdivided_solid", "slide_boundary",
-           "SOLIDS"]
+__all__ = ["graded_solid", "stress", "scatter_interior", "interior_vertices", "single_fold", "hex_prism_block",
+           "subdivided_solid", "slide_boundary", "SOLIDS"]
 
 #: The solids of :func:`subdivided_solid`
 SOLIDS = ("sphere", "torus", "holed_box", "cone")
