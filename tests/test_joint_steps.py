@@ -14,8 +14,8 @@ from hexsos_plugins.cells.quality import hex_edge_ratio, sample_scaled_jacobians
 from hexsos_plugins.examples import cubed_ball, structured_grid
 from hexsos_plugins.meshrepair import SURFACE_TOLERANCE, localopt
 from hexsos_plugins.meshrepair.boundary import boundary_model
-from hexsos_plugins.meshrepair.jointsteps import (RATIO_SLACK, bernstein_gradients, binding_rows, joint_steps,
-                                                 sample_gradients)
+from hexsos_plugins.meshrepair.jointsteps import (DELTA_MAX, RATIO_SLACK, bernstein_gradients, binding_rows,
+                                                 joint_steps, next_delta, sample_gradients)
 from hexsos_plugins.meshrepair.optimize import bernstein_coefficients
 
 SHARED = os.path.join(os.path.dirname(__file__), "..", "..", "shared", "data")
@@ -196,6 +196,34 @@ def test_a_part_of_a_refused_step_is_kept_and_the_same_programs_reach_higher(mon
     assert info["min_after"] > whole["min_after"] + 0.003, (info, whole)
     assert sample_scaled_jacobians(J[H], "hexahedron").min() == pytest.approx(info["min_after"], abs=1e-12)
     assert _certified(J, H)
+
+
+def test_the_trust_region_grows_after_a_whole_step_stays_after_half_and_halves_otherwise(monkeypatch):
+    """``next_delta``: x1.5 (capped) after the whole move kept, the same after half of it, half after a quarter or
+    none; and the steps apply it once per program to the part they kept (the cubed ball, 20 programs)."""
+    from hexsos_plugins.meshrepair import jointsteps
+
+    assert next_delta(0.02, 1.0) == pytest.approx(0.03) and next_delta(0.09, 1.0) == DELTA_MAX
+    assert next_delta(0.02, 0.5) == 0.02
+    assert next_delta(0.02, 0.25) == next_delta(0.02, 0.0) == 0.01
+    monkeypatch.setattr(jointsteps, "HALF_KEEPS", False)
+    assert next_delta(0.02, 0.5) == 0.01  # the rule before
+    monkeypatch.setattr(jointsteps, "HALF_KEEPS", True)
+    seen = []
+
+    def record(delta, part):
+        seen.append((delta, part))
+        return next_delta(delta, part)
+
+    monkeypatch.setattr(jointsteps, "next_delta", record)
+    W, H, bm, mv, _ = _stalled_ball()
+    _, info = joint_steps(W, H, mv, boundary=bm, max_tries=20)
+    parts = [p for _, p in seen]
+    assert len(seen) == info["tries"] and set(parts) <= {0.0, 0.25, 0.5, 1.0}
+    assert sum(p > 0 for p in parts) == info["steps"] and sum(0 < p < 1 for p in parts) == info["part_steps"]
+    assert 0.5 in parts  # a half step kept, and the next program saw the same region
+    k = parts.index(0.5)
+    assert k + 1 == len(seen) or seen[k + 1][0] == seen[k][0]
 
 
 def test_a_plateau_larger_than_a_program_grows_the_program():

@@ -17,6 +17,7 @@ import textwrap
 
 import numpy as np
 import pytest
+import scipy
 
 PVPYTHON = shutil.which("pvpython")
 pytestmark = pytest.mark.skipif(
@@ -170,6 +171,14 @@ def test_check_filter_by_label_in_pvpython(tmp_path, mixed_vtu):
     print(json.dumps(v, indent=1))
 
 
+def scipy_version_in_pvpython(tmp_path):
+    res, _ = run_pvpython(tmp_path, """
+        import json, scipy
+        json.dump({"scipy": scipy.__version__}, open(OUT, "w"))
+    """)
+    return res["scipy"]
+
+
 def test_repair_filter_in_pvpython(tmp_path):
     """Both repairs in ParaView's own Python (its numpy and scipy): the default (untangle, quality, certify)
     and the paper's, each giving what this process computes."""
@@ -201,10 +210,16 @@ def test_repair_filter_in_pvpython(tmp_path):
     for name, expected in (("optimize", default), ("paper", paper)):
         assert set(res[name]["cell:hexsos_status"]) == {1}, name
         disp = np.array(res[name]["point:hexsos_displacement"])
-        # the same algorithm on ParaView's numpy/scipy: the same mesh up to the optimizer's last digits
-        assert np.allclose(disp, expected.displacement, rtol=0, atol=1e-6), name
+        # the same algorithm on ParaView's numpy/scipy: the same mesh up to the optimizer's last digits, but where
+        # the default repair's joint steps solve their linear programs with the HiGHS of each Python's scipy
+        # (Debian's 1.10 in ParaView, against this one's): on a max-min as flat as this grid's (min SJ 0.99999)
+        # their optimal vertices differ, and so do the moves along the plateau (measured: 1.1e-3 at most, a 300th
+        # of an edge, with the minimum the same to 4e-8)
+        same_scipy = scipy_version_in_pvpython(tmp_path) == scipy.__version__
+        tol = 1e-6 if name == "paper" or same_scipy else 1e-2 / 3
+        assert np.allclose(disp, expected.displacement, rtol=0, atol=tol), name
         assert res[name]["min_sj_after"] == pytest.approx(expected.stats["min_sj_after"], abs=1e-6), name
-        assert res[name]["edge_ratio_after"] == pytest.approx(expected.stats["edge_ratio_after"], abs=1e-6), name
+        assert res[name]["edge_ratio_after"] == pytest.approx(expected.stats["edge_ratio_after"], abs=max(tol, 1e-6)), name
     assert res["optimize"]["min_sj_after"] > res["paper"]["min_sj_after"] + 0.2  # the point of the default
 
 
