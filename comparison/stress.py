@@ -61,7 +61,8 @@ def graded_solid(n: int = 8, *, progression: float = 1.15):
         return P, dict(cells)["hexahedron"]
 
 
-def _interior(H, N, cells=()):
+def interior_vertices(H, N, cells=()):
+    """(N,) bool: the vertices on no boundary face of hexes H and the other ``cells`` ((type, conn) pairs)."""
     from hexsos_plugins.meshrepair.boundary import boundary_faces
 
     tris, quads = boundary_faces([("hexahedron", H)] + list(cells))
@@ -77,7 +78,7 @@ def stress(P, H, *, frac: float = 0.8, amp: float = 1.0, seed: int = 0):
 
     P = np.array(P, dtype=np.float64, copy=True)
     rng = np.random.default_rng(seed)
-    inner = np.flatnonzero(_interior(H, len(P)))
+    inner = np.flatnonzero(interior_vertices(H, len(P)))
     pick = rng.choice(inner, size=int(round(frac * inner.size)), replace=False)
     # local edge length: mean over the hexes around each vertex
     h = hex_edge_length(P[H])
@@ -90,16 +91,11 @@ def stress(P, H, *, frac: float = 0.8, amp: float = 1.0, seed: int = 0):
     return P
 
 
-def interior_vertices(H, N):
-    """(N,) bool: the vertices of hexes H on no boundary face."""
-    return _interior(H, N)
-
-
 def scatter_interior(P, H, *, where: str = "box", seed: int = 0):
     """A copy of P with every interior vertex at the centroid of P (``where="centroid"``) or at a uniform random
     point of P's bounding box (``"box"``)."""
     P = np.array(P, dtype=np.float64, copy=True)
-    inner = _interior(H, len(P))
+    inner = interior_vertices(H, len(P))
     if where == "centroid":
         P[inner] = P.mean(axis=0)
     elif where == "box":
@@ -167,7 +163,7 @@ def hex_prism_block(n: int = 6, *, amp: float = 0.2, seed: int = 0, layers: int 
     cells = dict(cells)
     H, W = cells["hexahedron"], cells["wedge"]
     rng = np.random.default_rng(seed)
-    inner = np.flatnonzero(_interior(H, len(P), [("wedge", W)]) & (np.abs(P[:, 0] - 1.0) < 0.35))
+    inner = np.flatnonzero(interior_vertices(H, len(P), [("wedge", W)]) & (np.abs(P[:, 0] - 1.0) < 0.35))
     d = rng.uniform(-1, 1, (inner.size, 3))
     P = P.copy()
     P[inner] += amp * d

@@ -235,6 +235,11 @@ def _edge_graph(blocks, N):
     return np.unique(np.sort(np.concatenate(es), axis=1), axis=0)
 
 
+def _bad_count(bad):
+    """How many cells the per-block (M,) bool masks ``bad`` mark."""
+    return sum(int(b.sum()) for b in bad)
+
+
 def smooth_untangle(V, blocks, movable, bad_cells, max_sweeps=30):
     """Stage 1's start: Laplacian sweeps (each vertex to the mean of its edge neighbours) over the ``movable``
     vertices of the bad cells and one ring around them, each sweep kept only if it leaves fewer bad cells
@@ -250,7 +255,7 @@ def smooth_untangle(V, blocks, movable, bad_cells, max_sweeps=30):
         return V, bad_cells(V), 0
     deg = np.bincount(E.ravel(), minlength=N).astype(np.float64)
     bad = bad_cells(V)
-    nbad = sum(int(b.sum()) for b in bad)
+    nbad = _bad_count(bad)
     kept = 0
     for _ in range(max_sweeps):
         if nbad == 0:
@@ -265,7 +270,7 @@ def smooth_untangle(V, blocks, movable, bad_cells, max_sweeps=30):
         W = V.copy()
         W[mv] = S[mv] / deg[mv, None]
         bad_w = bad_cells(W)
-        n_w = sum(int(b.sum()) for b in bad_w)
+        n_w = _bad_count(bad_w)
         if n_w >= nbad:
             break
         V, bad, nbad = W, bad_w, n_w
@@ -295,7 +300,7 @@ def harmonic_untangle(V, blocks, movable, bad_cells, rings=HARMONIC_RINGS, also=
 
     N = V.shape[0]
     bad = bad_cells(V)
-    nbad = sum(int(b.sum()) for b in bad)
+    nbad = _bad_count(bad)
     E = _edge_graph(blocks, N)
     if nbad == 0 or E.shape[0] == 0:
         return V, bad, False
@@ -319,7 +324,7 @@ def harmonic_untangle(V, blocks, movable, bad_cells, rings=HARMONIC_RINGS, also=
     W = V.copy()
     W[free] = X.reshape(-1, 3)
     bad_w = bad_cells(W)
-    if 2 * sum(int(b.sum()) for b in bad_w) >= nbad:
+    if 2 * _bad_count(bad_w) >= nbad:
         return V, bad, False
     return W, bad_w, True
 
@@ -875,7 +880,7 @@ class _Optimize:
             # stage 1: untangle the bad cells and a few rings around them
             ts = time.perf_counter()
             V, collapsed = _spread_collapsed(V, blocks, sizes, movable)
-            info1["collapsed_cells"] = int(sum(int(c.sum()) for c in collapsed))
+            info1["collapsed_cells"] = _bad_count(collapsed)
             full = opt.Problem(V, blocks, sizes, np.ones(N, dtype=bool))
             sizes1 = sizes  # the untangling's (below)
             bad = full.bad_cells(V)
@@ -893,7 +898,7 @@ class _Optimize:
                     # (it forgets the positions it replaces: warrior_graded's sweeps leave 13 of 198, it 32)
                     W, bad_w, solved = harmonic_untangle(start, blocks, movable & interior, full.bad_cells,
                                                          also=collapsed)
-                    if solved and sum(int(b.sum()) for b in bad_w) < sum(int(b.sum()) for b in bad):
+                    if solved and _bad_count(bad_w) < _bad_count(bad):
                         V, bad, sweeps = smooth_untangle(W, blocks, movable & interior, full.bad_cells)
                         info1["harmonic_start"] = True
                 info1["smoothing_sweeps"] = sweeps
@@ -1143,7 +1148,7 @@ class _Optimize:
                                + ("(feature corners of the boundary: try boundary='free')" if self.boundary == "slide"
                                   else "(fixed boundary or pinned)"))
             if not untangled:
-                nb = sum(int(b.sum()) for b in opt.Problem(V, blocks, sizes, np.ones(N, dtype=bool)).bad_cells(V))
+                nb = _bad_count(opt.Problem(V, blocks, sizes, np.ones(N, dtype=bool)).bad_cells(V))
                 if nb:
                     why.append(f"the untangling ended with {nb} cell{'s' * (nb != 1)} still inverted at a corner or "
                                f"with a Bernstein coefficient <= 0")

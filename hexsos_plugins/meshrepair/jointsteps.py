@@ -47,8 +47,8 @@ MAX_HEXES = 50
 PLATEAU = 0.005
 PLATEAU_HEXES = 400
 #: The trust region: each vertex moves by at most this fraction of its mean edge length per coordinate of its
-#: freedom; it grows by half after a kept step (up to ``DELTA_MAX``) and halves after a refused one, and the steps
-#: end below ``DELTA_MIN``.
+#: freedom; it grows by half after a whole step kept (up to ``DELTA_MAX``), stays after half of one and halves
+#: otherwise (:func:`next_delta`), and the steps end below ``DELTA_MIN``.
 DELTA = 0.02
 DELTA_MAX = 0.1
 DELTA_MIN = 1e-4
@@ -321,7 +321,6 @@ def joint_steps(V, H, movable, *, boundary=None, deadline=None, target=None, ban
         res = linprog(cost, A_ub=Aub, b_ub=b_ub, bounds=bounds, method=LP_METHOD,
                       options={"time_limit": left})
         info["tries"] += 1
-        kept = False
         kept_part = 0.0
         if res.status == 0:
             D = np.einsum("vad,vd->va", B[verts], (lim[:nv] * res.x[:nv]).reshape(-1, 3))
