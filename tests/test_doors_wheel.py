@@ -14,19 +14,18 @@ import importlib.metadata
 import importlib.util
 import json
 import os
-import select
 import shutil
 import subprocess
 import sys
 import sysconfig
 import textwrap
-import time
 
 import numpy as np
 import pytest
 
 import hexsos_plugins as hs
 from hexsos_plugins.cli import doors as cli_doors
+from xserver import virtual_display
 
 PVPYTHON = shutil.which("pvpython")
 PARAVIEW = shutil.which("paraview")
@@ -155,30 +154,9 @@ def test_the_wheel_holds_every_module_and_the_package_data(wheel, tmp_path):
 
 @pytest.fixture(scope="module")
 def display():
-    """A virtual X server of our own (Xvfb picks a free display and tells it on a pipe)."""
-    xvfb = shutil.which("Xvfb")
-    if xvfb is None:
-        pytest.skip("Xvfb is not installed (apt-get install xvfb)")
-    read_end, write_end = os.pipe()
-    proc = subprocess.Popen([xvfb, "-displayfd", str(write_end), "-screen", "0", "1600x1200x24", "-nolisten", "tcp"],
-                            pass_fds=(write_end,), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    os.close(write_end)
-    number, deadline = b"", time.monotonic() + 60
-    while not number.endswith(b"\n") and time.monotonic() < deadline:
-        if not select.select([read_end], [], [], max(deadline - time.monotonic(), 0))[0]:
-            break
-        chunk = os.read(read_end, 32)
-        if not chunk:
-            break
-        number += chunk
-    os.close(read_end)
-    if not number.strip():
-        proc.kill()
-        proc.wait()
-        pytest.fail("Xvfb did not report a display within 60 s")
-    yield ":" + number.decode().strip()
-    proc.terminate()
-    proc.wait(timeout=60)
+    """A virtual X server of our own, the size of a desktop screen."""
+    with virtual_display("1600x1200x24") as name:
+        yield name
 
 
 def _pixels(png):

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import os
 import re
-import shutil
 import struct
 import subprocess
 import sys
@@ -24,6 +23,7 @@ from hexsos_plugins import NoHexahedraError, check  # noqa: E402
 from hexsos_plugins.cells.elements import ELEMENTS  # noqa: E402
 from hexsos_plugins.errors import InvalidInputError  # noqa: E402
 from hexsos_plugins.examples import demo_mesh, gmsh_mesh, hexes_to_mesh, inside_invalid_hex  # noqa: E402
+from xserver import virtual_display  # noqa: E402
 
 import gmsh_plugin  # noqa: E402
 from gmsh_plugin import model as gm  # noqa: E402
@@ -575,9 +575,14 @@ def demo_msh(tmp_path_factory, demo):
 
 
 def _env(display=False):
+    """The environment of a door's process: ``display`` False takes any display away, True keeps the caller's, a
+    string (``":N"``) sets it."""
     env = dict(os.environ)
     env["PYTHONPATH"] = ROOT + os.pathsep + env.get("PYTHONPATH", "")
-    if not display:
+    if isinstance(display, str):
+        env["DISPLAY"] = display
+        env.pop("WAYLAND_DISPLAY", None)
+    elif not display:
         env.pop("DISPLAY", None)
         env.pop("WAYLAND_DISPLAY", None)
     return env
@@ -729,14 +734,18 @@ def _red_pixels(img):
     return int(((top[..., 0] > 90) & (top[..., 1] < 50) & (top[..., 2] < 50)).sum())
 
 
-NO_XVFB = "xvfb-run is not installed (apt-get install xvfb)"
+@pytest.fixture(scope="module")
+def display():
+    """A virtual X server of the tests' own (tests/xserver.py): the door's exit status is its own."""
+    with virtual_display() as name:
+        yield name
 
 
-def _gui_run(mesh, tmp_path, action):
+def _gui_run(mesh, tmp_path, action, display):
     shot = tmp_path / f"{action}.png"
-    proc = subprocess.run(["xvfb-run", "-a", sys.executable, "-m", "gmsh_plugin", mesh, "--auto-action", action,
+    proc = subprocess.run([sys.executable, "-m", "gmsh_plugin", mesh, "--auto-action", action,
                            "--exit-after", "--screenshot", str(shot)], capture_output=True, text=True,
-                          env=_env(display=True), cwd=str(tmp_path), timeout=120)
+                          env=_env(display=display), cwd=str(tmp_path), timeout=120)
     assert "no display" not in proc.stderr, proc.stderr  # the GUI really ran
     assert "Traceback" not in proc.stderr, proc.stderr
     assert shot.exists() and shot.stat().st_size > 1000
@@ -745,19 +754,17 @@ def _gui_run(mesh, tmp_path, action):
     return proc, img
 
 
-@pytest.mark.skipif(shutil.which("xvfb-run") is None, reason=NO_XVFB)
-def test_gui_event_loop_under_xvfb(demo, demo_msh, tmp_path):
+def test_gui_event_loop_under_xvfb(demo, demo_msh, tmp_path, display):
     _, _, _, ref = demo
-    proc, img = _gui_run(demo_msh, tmp_path, "check")
+    proc, img = _gui_run(demo_msh, tmp_path, "check", display)
     assert proc.returncode == 1, proc.stdout + proc.stderr
     assert _counts_in(proc.stdout)["invalid"] == ref.counts()["invalid"]
     assert _red_pixels(img) > 200  # the invalid hexes are drawn
 
 
-@pytest.mark.skipif(shutil.which("xvfb-run") is None, reason=NO_XVFB)
-def test_gui_repair_button_under_xvfb(tmp_path):
+def test_gui_repair_button_under_xvfb(tmp_path, display):
     path = _write_repairable(tmp_path)
-    proc, img = _gui_run(path, tmp_path, "repair")
+    proc, img = _gui_run(path, tmp_path, "repair", display)
     assert proc.returncode == 0, proc.stdout + proc.stderr
     assert "certified" in proc.stdout and _counts_in(proc.stdout)["invalid"] == 0
     assert _red_pixels(img) == 0  # no invalid hex left to draw
@@ -820,17 +827,16 @@ def test_safe_step_model_from_a_view_and_from_arrays(session):
 
 # --- what a user of the Gmsh door sees (issue: screenshot, order-3 message, status key, panel labels) -----------
 
-@pytest.mark.skipif(shutil.which("xvfb-run") is None, reason=NO_XVFB)
-def test_screenshot_without_auto_action_is_the_opened_model_and_ends_by_itself(tmp_path):
+def test_screenshot_without_auto_action_is_the_opened_model_and_ends_by_itself(tmp_path, display):
     import signal
 
     shot = tmp_path / "opened.png"
-    proc = subprocess.Popen(["xvfb-run", "-a", sys.executable, "-m", "gmsh_plugin", "--demo", "--screenshot",
+    proc = subprocess.Popen([sys.executable, "-m", "gmsh_plugin", "--demo", "--screenshot",
                              str(shot)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            env=_env(display=True), cwd=str(tmp_path), start_new_session=True)
+                            env=_env(display=display), cwd=str(tmp_path), start_new_session=True)
     try:
         out, err = proc.communicate(timeout=90)
-    except subprocess.TimeoutExpired:  # waits for an action that never comes: end it, Xvfb included
+    except subprocess.TimeoutExpired:  # waits for an action that never comes: end it
         os.killpg(proc.pid, signal.SIGKILL)
         proc.communicate()
         pytest.fail("hexsos gmsh --screenshot without --auto-action did not end by itself within 90 s")
@@ -898,9 +904,8 @@ def _magenta_pixels(img):
     return int(((r > 150) & (b > 150) & (g < 90)).sum())
 
 
-@pytest.mark.skipif(shutil.which("xvfb-run") is None, reason=NO_XVFB)
-def test_gui_picture_shows_the_inside_only_hex_in_magenta_and_the_key(demo_msh, tmp_path):
-    proc, img = _gui_run(demo_msh, tmp_path, "check")
+def test_gui_picture_shows_the_inside_only_hex_in_magenta_and_the_key(demo_msh, tmp_path, display):
+    proc, img = _gui_run(demo_msh, tmp_path, "check", display)
     assert _magenta_pixels(img) > 30 and _red_pixels(img) > 200, (_magenta_pixels(img), _red_pixels(img))
     top = np.abs(img[:40, :300] - img[60, 5]).max(axis=2) > 100  # the key's text at the top left
     assert top.sum() > 200
@@ -941,13 +946,13 @@ def _labels_cut(png):
     return [int(y) for y in range(rows.min(), rows.max() + 1) if grey[y] and dark[y, xw - 3: xw + 1].any()]
 
 
-@pytest.mark.skipif(shutil.which("xvfb-run") is None, reason=NO_XVFB)
 def test_panel_labels_fit_and_the_method_comes_before_the_papers_parameters(tmp_path):
     pytest.importorskip("PIL.ImageGrab")
     script, shot = tmp_path / "panel.py", tmp_path / "panel.png"
     script.write_text(PANEL_SCRIPT)
-    proc = subprocess.run(["xvfb-run", "-a", "-s", "-screen 0 1600x1000x24", sys.executable, str(script), str(shot)],
-                          capture_output=True, text=True, env=_env(display=True), cwd=str(tmp_path), timeout=90)
+    with virtual_display("1600x1000x24") as wide:
+        proc = subprocess.run([sys.executable, str(script), str(shot)], capture_output=True, text=True,
+                              env=_env(display=wide), cwd=str(tmp_path), timeout=90)
     assert proc.returncode == 0 and shot.exists(), proc.stderr
     assert _labels_cut(shot) == []
     # ONELAB sorts by name: every repair's parameters, then the paper's own (rho, margin)
