@@ -28,8 +28,9 @@ import numpy as np
 
 from gmsh_plugin.model import model_cells
 from hexsos_plugins.examples import gmsh_model
+from hexsos_plugins.meshrepair.boundary import interior_vertices
 
-__all__ = ["graded_solid", "stress", "scatter_interior", "interior_vertices", "single_fold", "hex_prism_block",
+__all__ = ["graded_solid", "stress", "scatter_interior", "single_fold", "hex_prism_block",
            "subdivided_solid", "slide_boundary", "SOLIDS"]
 
 #: The solids of :func:`subdivided_solid`
@@ -61,24 +62,13 @@ def graded_solid(n: int = 8, *, progression: float = 1.15):
         return P, dict(cells)["hexahedron"]
 
 
-def interior_vertices(H, N, cells=()):
-    """(N,) bool: the vertices on no boundary face of hexes H and the other ``cells`` ((type, conn) pairs)."""
-    from hexsos_plugins.meshrepair.boundary import boundary_faces
-
-    tris, quads = boundary_faces([("hexahedron", H)] + list(cells))
-    b = np.zeros(N, dtype=bool)
-    b[tris.ravel()] = True
-    b[quads.ravel()] = True
-    return ~b
-
-
 def stress(P, H, *, frac: float = 0.8, amp: float = 1.0, seed: int = 0):
     """A copy of P with ``frac`` of the interior vertices moved by up to ``amp`` x the local edge length."""
     from hexsos_plugins.meshrepair.paper import hex_edge_length
 
     P = np.array(P, dtype=np.float64, copy=True)
     rng = np.random.default_rng(seed)
-    inner = np.flatnonzero(interior_vertices(H, len(P)))
+    inner = np.flatnonzero(interior_vertices([("hexahedron", H)], len(P)))
     pick = rng.choice(inner, size=int(round(frac * inner.size)), replace=False)
     # local edge length: mean over the hexes around each vertex
     h = hex_edge_length(P[H])
@@ -95,7 +85,7 @@ def scatter_interior(P, H, *, where: str = "box", seed: int = 0):
     """A copy of P with every interior vertex at the centroid of P (``where="centroid"``) or at a uniform random
     point of P's bounding box (``"box"``)."""
     P = np.array(P, dtype=np.float64, copy=True)
-    inner = interior_vertices(H, len(P))
+    inner = interior_vertices([("hexahedron", H)], len(P))
     if where == "centroid":
         P[inner] = P.mean(axis=0)
     elif where == "box":
@@ -163,7 +153,8 @@ def hex_prism_block(n: int = 6, *, amp: float = 0.2, seed: int = 0, layers: int 
     cells = dict(cells)
     H, W = cells["hexahedron"], cells["wedge"]
     rng = np.random.default_rng(seed)
-    inner = np.flatnonzero(interior_vertices(H, len(P), [("wedge", W)]) & (np.abs(P[:, 0] - 1.0) < 0.35))
+    inner = np.flatnonzero(interior_vertices([("hexahedron", H), ("wedge", W)], len(P))
+                           & (np.abs(P[:, 0] - 1.0) < 0.35))
     d = rng.uniform(-1, 1, (inner.size, 3))
     P = P.copy()
     P[inner] += amp * d

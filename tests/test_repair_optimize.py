@@ -203,11 +203,12 @@ def test_every_interior_vertex_anywhere_is_untangled_from_the_sweeps_fixed_point
     # the hexes inverted; 30 sweeps leave 4); one sparse solve puts each where it is the mean of its neighbours, and
     # the repair certifies the mesh (before it, on such starts of the published meshes, the untangling ran its 60 s
     # and the paper's Algorithm 2 after it, and cells were left not valid)
-    from comparison.stress import interior_vertices, scatter_interior
+    from comparison.stress import scatter_interior
+    from hexsos_plugins.meshrepair.boundary import interior_vertices
     from hexsos_plugins.meshrepair.driver import harmonic_untangle, smooth_untangle
 
     P, H = graded_solid(8)
-    inner = interior_vertices(H, len(P))
+    inner = interior_vertices([("hexahedron", H)], len(P))
     Q = scatter_interior(P, H, where="box", seed=0)
     assert np.array_equal(Q[~inner], P[~inner]) and (scaled_jacobian(Q, H) > 0).mean() < 0.05
     prob = op.Problem(Q, [("hexahedron", H)], [np.ones(len(H))], np.ones(len(Q), bool))
@@ -235,7 +236,8 @@ def test_every_interior_vertex_anywhere_is_untangled_from_the_sweeps_fixed_point
     # refused where it would not halve the bad cells: a boundary fold, which no interior vertex can undo
     F, HF, _ = single_fold(4)
     pf = op.Problem(F, [("hexahedron", HF)], [np.ones(len(HF))], np.ones(len(F), bool))
-    W, badf, keptf = harmonic_untangle(F, [("hexahedron", HF)], interior_vertices(HF, len(F)), pf.bad_cells)
+    W, badf, keptf = harmonic_untangle(F, [("hexahedron", HF)], interior_vertices([("hexahedron", HF)], len(F)),
+                                       pf.bad_cells)
     assert badf[0].sum() > 0 and not keptf and W is F
 
 

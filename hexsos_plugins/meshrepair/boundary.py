@@ -27,7 +27,7 @@ import numpy as np
 from ..cells.elements import ELEMENTS
 from ..errors import DependencyError
 
-__all__ = ["boundary_faces", "BoundaryModel", "NearestPoints", "boundary_model", "Slide"]
+__all__ = ["boundary_faces", "interior_vertices", "BoundaryModel", "NearestPoints", "boundary_model", "Slide"]
 
 
 def _faces_of(cells):
@@ -56,6 +56,14 @@ def boundary_faces(cells):
     """The boundary faces of ``cells`` (list of (type, conn), VTK order): (tris (T, 3), quads (Q, 4))."""
     T, Q = _faces_of(cells)
     return _once(T), _once(Q)
+
+
+def interior_vertices(cells, n_points):
+    """(n_points,) bool: the vertices on no boundary face of ``cells`` (list of (type, conn), VTK order)."""
+    inner = np.ones(int(n_points), dtype=bool)
+    for F in boundary_faces(cells):
+        inner[F.ravel()] = False
+    return inner
 
 
 def _triangles(tris, quads):

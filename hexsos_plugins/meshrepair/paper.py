@@ -72,7 +72,8 @@ import numpy as np
 from ..certify import CheckResult, check, validate_arrays
 from ..errors import InvalidInputError
 from ..cells.hexahedron import det_at, det_vertex_gradient
-from ..io.mesh import boundary_face_rows, hexes_to_mesh
+from ..io.mesh import hexes_to_mesh
+from .boundary import interior_vertices
 from .options import DEFAULT_MARGIN, DEFAULT_RHO
 from .result import RepairResult, readonly
 
@@ -112,10 +113,7 @@ def hex_edge_length(X) -> np.ndarray:
 
 def boundary_vertex_mask(hexes, n_points: int) -> np.ndarray:
     """Boolean mask (N,): the points on a boundary quad (a hex face that belongs to one hex only)."""
-    faces, rows = boundary_face_rows(hexes)
-    mask = np.zeros(int(n_points), dtype=bool)
-    mask[faces[rows].ravel()] = True
-    return mask
+    return ~interior_vertices([("hexahedron", np.asarray(hexes, dtype=np.int64).reshape(-1, 8))], n_points)
 
 
 # ------------------------------------------------------------------------------------------------------
