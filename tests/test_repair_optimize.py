@@ -566,6 +566,61 @@ def test_rounds_below_their_start_for_too_long_give_up():
     assert np.array_equal(out[None][1], out[3600.0][1])
 
 
+def test_rounds_below_their_start_stop_when_their_pace_cannot_bring_them_back():
+    """``recovers_in_time``: the trails of stage 2's rounds measured on the published meshes (seconds, minimum after
+    each round). kitten_with_bifur_3's (0.182 -> 0.133 -> 0.136 -> 0.140 ... 0.114, below their start for 10 s and
+    undone) stop at 3.2 s, the first round judged; warrior_graded's widened region (0.569 -> 0.521, back above at
+    5.4 s) and dinopet_graded's first chunk (0.240 -> 0.193, back above at 3.1 s) go on to their end; a minimum
+    still at its lowest after the grace stops; the 10 s still stop any chunk below its start."""
+    kitten = [(1.6, 0.133), (3.2, 0.136), (4.9, 0.140), (6.6, 0.140), (6.8, 0.140), (8.5, 0.140), (10.3, 0.114)]
+    warrior = [(1.2, 0.521), (2.3, 0.528), (3.2, 0.536), (4.0, 0.543), (4.7, 0.563), (5.4, 0.574)]
+    dinopet = [(0.4, 0.193), (0.9, 0.194), (1.4, 0.212), (1.8, 0.243), (2.1, 0.275), (2.5, 0.279), (2.8, 0.280),
+               (3.1, 0.310), (3.3, 0.335), (3.6, 0.354)]
+
+    def first_stop(trail, m_start, **kw):
+        return next((k + 1 for k in range(len(trail))
+                     if not op.recovers_in_time(trail[:k + 1], m_start, 10.0, **kw)), None)
+
+    assert first_stop(kitten, 0.182) == 2
+    assert first_stop(warrior, 0.569) is None and first_stop(dinopet, 0.240) is None
+    # judged from the first round, dinopet's would stop there (a minimum at its lowest has no pace), and judged
+    # from the second (0.001 regained in 0.5 s: 23 s to go) there: the grace is what keeps it
+    assert first_stop(dinopet, 0.240, pace_seconds=0.0) == 1
+    assert first_stop(dinopet, 0.240, pace_seconds=0.5) == 2
+    # judged only at 10 s, kitten's go on to their seventh round (the rule before the pace)
+    assert first_stop(kitten, 0.182, pace_seconds=10.0) == 7
+    # still at its lowest after the grace: no pace, stop; above the start: never stopped, however late
+    assert not op.recovers_in_time([(1.0, 0.30), (3.5, 0.29)], 0.35, 10.0)
+    assert op.recovers_in_time([(1.0, 0.30), (30.0, 0.36)], 0.35, 10.0)
+    # a pace that would bring it back just in time goes on; a hair slower does not
+    assert op.recovers_in_time([(1.0, 0.30), (4.0, 0.32)], 0.35, 8.5)
+    assert not op.recovers_in_time([(1.0, 0.30), (4.0, 0.32)], 0.35, 8.4)
+
+
+def test_improve_judges_the_pace_of_rounds_below_their_start(monkeypatch):
+    """``improve`` asks :func:`recovers_in_time` after each round with :data:`PACE_SECONDS`: on the cubed ball of the
+    test above (first round 0.69 -> 0.65, then back past the start) a grace of 0 s stops the rounds at the first
+    (its minimum is its lowest: no pace yet), a grace they never reach lets them run as without the rule."""
+    from hexsos_plugins.meshrepair import localopt
+    from hexsos_plugins.meshrepair.boundary import boundary_model
+    from hexsos_plugins.meshrepair.driver import cell_size
+
+    Q, H = cubed_ball(3)
+    bm = boundary_model(Q, [("hexahedron", H)], tolerance=0.0)
+    mv = np.ones(len(Q), bool)
+    mv[bm.corners] = False
+    W, _ = localopt.local_sweeps(Q, H, mv, boundary=bm)
+    out = {}
+    for grace in (0.0, 3600.0):
+        monkeypatch.setattr(op, "PACE_SECONDS", grace)
+        prob = op.Problem(W, [("hexahedron", H)], [cell_size(Q, "hexahedron", H)], mv, slide=bm.slide(W, mv))
+        m0 = prob.min_sj(W)
+        out[grace] = op.improve(prob, max_rounds=6, recover_seconds=3600.0,
+                                project=lambda X, p=prob: bm.project(X, p.slide.idx))
+    assert out[0.0]["rounds"] == 1 and out[0.0].get("unrecovered") and out[0.0]["min_sj"] < m0
+    assert out[3600.0]["rounds"] > 1 and out[3600.0]["min_sj"] > m0 + 0.05 and not out[3600.0].get("unrecovered")
+
+
 def test_projection_holds_the_edge_floor():
     """project_valid moves a vertex as far as every cell stays valid; with ``ratio_floor`` also as far as no hex's
     shortest / longest edge falls below it: a target that collapses an edge of the unit cube is taken whole without,
