@@ -540,21 +540,29 @@ def test_rounds_that_lower_the_minimum_are_undone(monkeypatch):
     assert "the last 10 undone" in r1.summary() and "undone" not in r0.summary()
 
 
-def test_rounds_below_their_start_for_too_long_give_up():
-    """``improve(..., recover_seconds=s)``: rounds whose minimum is still below their start after s seconds stop
-    (the driver then undoes them: kitten_with_bifur_3's rounds, 5 s each on 34,880 hexes, sat below their start
-    for the whole 30 s budget). On a 3^3 cubed ball after the vertex steps the first round falls (0.69 -> 0.65) and
-    the next ones recover past the start: with 0 s the rounds stop at the first, unrecovered; without the rule, or
-    with a budget they do not reach, they run on, bit for bit alike, and end above the start."""
+def _ball_after_vertex_steps():
+    """A 3^3 cubed ball held on its surface, after the vertex steps: (Q, hexes, boundary model, movable, W), where
+    stage 2's first round falls below its start (0.69 -> 0.65) and the next ones recover past it."""
     from hexsos_plugins.meshrepair import localopt
     from hexsos_plugins.meshrepair.boundary import boundary_model
-    from hexsos_plugins.meshrepair.driver import cell_size
 
     Q, H = cubed_ball(3)
     bm = boundary_model(Q, [("hexahedron", H)], tolerance=0.0)
     mv = np.ones(len(Q), bool)
     mv[bm.corners] = False
     W, _ = localopt.local_sweeps(Q, H, mv, boundary=bm)
+    return Q, H, bm, mv, W
+
+
+def test_rounds_below_their_start_for_too_long_give_up():
+    """``improve(..., recover_seconds=s)``: rounds whose minimum is still below their start after s seconds stop
+    (the driver then undoes them: kitten_with_bifur_3's rounds, 5 s each on 34,880 hexes, sat below their start
+    for the whole 30 s budget). On a 3^3 cubed ball after the vertex steps the first round falls (0.69 -> 0.65) and
+    the next ones recover past the start: with 0 s the rounds stop at the first, unrecovered; without the rule, or
+    with a budget they do not reach, they run on, bit for bit alike, and end above the start."""
+    from hexsos_plugins.meshrepair.driver import cell_size
+
+    Q, H, bm, mv, W = _ball_after_vertex_steps()
     out = {}
     for rs in (0.0, None, 3600.0):
         prob = op.Problem(W, [("hexahedron", H)], [cell_size(Q, "hexahedron", H)], mv, slide=bm.slide(W, mv))
@@ -601,15 +609,9 @@ def test_improve_judges_the_pace_of_rounds_below_their_start(monkeypatch):
     """``improve`` asks :func:`recovers_in_time` after each round with :data:`PACE_SECONDS`: on the cubed ball of the
     test above (first round 0.69 -> 0.65, then back past the start) a grace of 0 s stops the rounds at the first
     (its minimum is its lowest: no pace yet), a grace they never reach lets them run as without the rule."""
-    from hexsos_plugins.meshrepair import localopt
-    from hexsos_plugins.meshrepair.boundary import boundary_model
     from hexsos_plugins.meshrepair.driver import cell_size
 
-    Q, H = cubed_ball(3)
-    bm = boundary_model(Q, [("hexahedron", H)], tolerance=0.0)
-    mv = np.ones(len(Q), bool)
-    mv[bm.corners] = False
-    W, _ = localopt.local_sweeps(Q, H, mv, boundary=bm)
+    Q, H, bm, mv, W = _ball_after_vertex_steps()
     out = {}
     for grace in (0.0, 3600.0):
         monkeypatch.setattr(op, "PACE_SECONDS", grace)
