@@ -294,3 +294,33 @@ def test_past_their_budget_the_steps_go_on_while_they_gain(monkeypatch):
     # stopped before program k: the three before it gained less than ``gain``; at the reading before, they had not
     assert min_after(k) - min_after(k - 3) < gain <= min_after(k - 1) - min_after(k - 4)
     assert np.array_equal(mid, run(max_tries=k)[0]) and minfo["past_soft"] == 2 * k + 1 - 5.0
+
+
+def test_a_program_keeps_every_sample_a_part_of_its_height_above_the_minimum(monkeypatch):
+    """``KEEP``: two hexes sharing a face whose four vertices are moved at random (the others fixed), one program
+    each. With the default every sample ends at least ``KEEP`` of its height above the old minimum over the new one
+    (the program holds it to first order; here it holds outright); with 0, on the two draws where raising the worst
+    sample pulls a sample of the other hex down, that sample ends at the new minimum (its height lost by more than
+    the bound allows), at about the same gain."""
+    from hexsos_plugins.meshrepair import jointsteps
+
+    assert 0 < jointsteps.KEEP < 1
+    keep = jointsteps.KEEP
+
+    def one_program(seed):
+        P, H = structured_grid(2, 1, 1)
+        mid = np.isclose(P[:, 0], 0.5 * P[:, 0].max())
+        Q = P.copy()
+        Q[mid] += 0.075 * P[:, 0].max() * np.random.default_rng(seed).standard_normal((mid.sum(), 3))
+        s0 = sample_scaled_jacobians(Q[H], "hexahedron")
+        J, info = joint_steps(Q, H, mid, max_tries=1)
+        s = sample_scaled_jacobians(J[H], "hexahedron")
+        assert info["steps"] == 1 and s.min() > s0.min() + 0.02 and _certified(J, H), info
+        return s.min(), float(((s - s.min()) - keep * (s0 - s0.min())).min())
+
+    kept = {seed: one_program(seed) for seed in range(6)}
+    assert all(v >= -1e-9 for _, v in kept.values()), kept
+    monkeypatch.setattr(jointsteps, "KEEP", 0.0)
+    free = {seed: one_program(seed) for seed in (2, 3)}
+    assert all(v < -1e-3 for _, v in free.values()), free
+    assert all(abs(free[k][0] - kept[k][0]) < 2e-3 for k in free), (free, kept)

@@ -5,7 +5,7 @@ alone cannot move without lowering a neighbour (cat_2 after them: eight hexes at
 corner). Here every vertex of the hexes within :data:`SPAN` of the minimum moves at once, by sequential linear
 programming for the max-min: each step solves a linear program (HiGHS, through :func:`scipy.optimize.linprog`)
 for the move that maximizes ``t`` with every scaled Jacobian sample of every hex around those vertices, linearized,
-at least ``t``; within a trust region (a fraction of each vertex's mean edge length); in each vertex's freedom
+at least ``t`` plus :data:`KEEP` of its height above the minimum; within a trust region (a fraction of each vertex's mean edge length); in each vertex's freedom
 (inside any direction; boundary vertices within their band, as the vertex steps' last pass, the others where they
 are); with each hex's shortest / longest edge, linearized, above the lesser of its own and
 :data:`~hexsos_plugins.meshrepair.localopt.RATIO_FLOOR`, and its low Bernstein coefficients of det J, linearized,
@@ -30,7 +30,7 @@ from .localopt import BAND_BELOW, RATIO_FLOOR, band_limits, vertex_freedoms
 from .optimize import bernstein_matrix, cof3, hex_bernstein_samples
 
 __all__ = ["joint_steps", "sample_gradients", "bernstein_gradients", "binding_rows", "next_delta", "SPAN", "MAX_HEXES",
-           "PLATEAU", "PLATEAU_HEXES", "RATIO_SLACK", "HALF_KEEPS"]
+           "PLATEAU", "PLATEAU_HEXES", "RATIO_SLACK", "HALF_KEEPS", "KEEP"]
 
 #: The hexes whose vertices move: within this of the minimum, the :data:`MAX_HEXES` lowest at most (measured on
 #: the published meshes after the vertex steps, 10 s each, with a box for the band: 50 reached as high as 100 and
@@ -82,6 +82,15 @@ LP_SECONDS = 0.5
 #: 20 s of these steps reached 0.461 in 89 programs (33 kept at a part) with the region halved, 0.475 in 62 (49)
 #: with it kept, and 0.476 in 51 (44) kept after a quarter step too (one run each, the same start)
 HALF_KEEPS = True
+#: Each sample of a program keeps this fraction of its height above the minimum (linearized: ``sj + g.d >= m + t +
+#: KEEP (sj - m)``, t the program's gain): without it a program is free to take any sample down to the new
+#: minimum, its solution (a vertex of the optimal face) does, and the worst hexes' neighbours pile up there.
+#: kitten_with_bifur_3's 1,564 hexes within 0.01 of its minimum after the repair included hexes at 0.74-0.97 in
+#: its input. Medians over three starts (``python -m comparison.bench_repair --published --starts 3``, 2026-12-05),
+#: 0 -> 0.2: kitten_with_bifur_3 0.480 -> 0.487 (0.455 / 0.480 / 0.489 -> 0.470 / 0.489 / 0.487), the bunny 0.837
+#: -> 0.848, Dolphin_2 0.781 -> 0.787, rockarm 0.846 -> 0.847, the others the same; single runs of kitten: 0.5
+#: 0.476, 0.8 0.439 (the steps hold back too much)
+KEEP = 0.2
 #: The steps end when ``PATIENCE`` tries in a row raise the minimum by less than ``MIN_GAIN`` in all.
 PATIENCE = 8
 MIN_GAIN = 1e-4
@@ -254,7 +263,8 @@ def joint_steps(V, H, movable, *, boundary=None, deadline=None, target=None, ban
         vid = np.broadcast_to(Hx[:, None, :], (nh, K, 8)).ravel()
         row = np.broadcast_to(np.arange(nh * K).reshape(nh, K, 1), (nh, K, 8)).ravel()
         r, c, v = _rows(-g.reshape(-1, 3), vid, col, B, row)
-        rows, cols, vals, rhs = [r, np.arange(nh * K)], [c, np.full(nh * K, nv)], [v, np.ones(nh * K)], [sj.ravel() - m]
+        rows, cols, vals, rhs = [r, np.arange(nh * K)], [c, np.full(nh * K, nv)], [v, np.ones(nh * K)], [
+            (1.0 - KEEP) * (sj.ravel() - m)]
         n_rows = nh * K
         # low Bernstein coefficients: -grad . dx <= b / 2 (each row scaled by its hex's largest coefficient)
         b, (hh, pp, db) = bernstein_gradients(X, low=BERNSTEIN_LOW)
