@@ -5,9 +5,10 @@ alone cannot move without lowering a neighbour (cat_2 after them: eight hexes at
 corner). Here every vertex of the hexes within :data:`SPAN` of the minimum moves at once, by sequential linear
 programming for the max-min: each step solves a linear program (HiGHS, through :func:`scipy.optimize.linprog`)
 for the move that maximizes ``t`` with every scaled Jacobian sample of every hex around those vertices, linearized,
-at least ``t`` plus :data:`KEEP` of its height above the minimum; within a trust region (a fraction of each vertex's mean edge length); in each vertex's freedom
-(inside any direction; boundary vertices within their band, as the vertex steps' last pass, the others where they
-are); with each hex's shortest / longest edge, linearized, above the lesser of its own and
+at least ``t`` plus :data:`KEEP` of its height above the minimum; within a trust region (a fraction of each vertex's
+mean edge length); in each vertex's freedom (inside any direction; boundary vertices within their band, as the
+vertex steps' last pass, the others where they are); with each hex's shortest / longest edge, linearized, above the
+lesser of its own and
 :data:`~hexsos_plugins.meshrepair.localopt.RATIO_FLOOR`, and its low Bernstein coefficients of det J, linearized,
 above half their value (the vertices of a hex with a coefficient near 0 take shorter steps:
 :data:`NEAR_ZERO_STEP`). The step is kept only where the mesh's least sample rises, every Bernstein coefficient of
