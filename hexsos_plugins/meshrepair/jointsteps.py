@@ -89,8 +89,8 @@ HALF_KEEPS = True
 #: kitten_with_bifur_3's 1,564 hexes within 0.01 of its minimum after the repair included hexes at 0.74-0.97 in
 #: its input. Medians over three starts (``python -m comparison.bench_repair --published --starts 3``, 2026-12-05),
 #: 0 -> 0.2: kitten_with_bifur_3 0.480 -> 0.487 (0.455 / 0.480 / 0.489 -> 0.470 / 0.489 / 0.487), the bunny 0.837
-#: -> 0.848, Dolphin_2 0.781 -> 0.787, rockarm 0.846 -> 0.847, the others the same; single runs of kitten: 0.5
-#: 0.476, 0.8 0.439 (the steps hold back too much)
+#: -> 0.848, Dolphin_2 0.781 -> 0.787, rockarm 0.846 -> 0.847, the others the same; kitten's medians with 0.1 and
+#: 0.3, 0.482 and 0.483; single runs of kitten: 0.5 0.476, 0.8 0.439 (the steps hold back too much)
 KEEP = 0.2
 #: The steps end when ``PATIENCE`` tries in a row raise the minimum by less than ``MIN_GAIN`` in all.
 PATIENCE = 8
