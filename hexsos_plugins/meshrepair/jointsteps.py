@@ -8,9 +8,8 @@ for the move that maximizes ``t`` with every scaled Jacobian sample of every hex
 at least ``t`` plus :data:`KEEP` of its height above the minimum; within a trust region (a fraction of each vertex's
 mean edge length); in each vertex's freedom (inside any direction; boundary vertices within their band, as the
 vertex steps' last pass, the others where they are); with each hex's shortest / longest edge, linearized, above the
-lesser of its own and
-:data:`~hexsos_plugins.meshrepair.localopt.RATIO_FLOOR`, and its low Bernstein coefficients of det J, linearized,
-above half their value (the vertices of a hex with a coefficient near 0 take shorter steps:
+lesser of its own and :data:`~hexsos_plugins.meshrepair.localopt.RATIO_FLOOR`, and its low Bernstein coefficients of
+det J, linearized, above half their value (the vertices of a hex with a coefficient near 0 take shorter steps:
 :data:`NEAR_ZERO_STEP`). The step is kept only where the mesh's least sample rises, every Bernstein coefficient of
 every hex stays positive, no hex's edge ratio falls below its floor (less :data:`RATIO_SLACK`) and every banded
 vertex stays in its band (exactly, not linearized); otherwise half and a quarter of the step are tried, and the
