@@ -192,20 +192,23 @@ def starts(n, names=None, jobs=0):
     """The default repair on each published mesh from ``n`` starts perturbed by 1e-12 of its diagonal (seeds 1..n):
     the certified minimum scaled Jacobian of each and their median (a change of rounding alone moves a single run's
     minimum by up to 0.08), the least shortest / longest edge of a hex of each, and the farthest boundary vertex
-    from the input surface (``boundary_max_distance``) over them."""
-    print("| mesh | min SJ per start | median | least shortest / longest edge per start | farthest boundary vertex "
-          "(of diag) |\n|---|---|---|---|---|")
+    from the input surface (``boundary_max_distance``) over them; and the least min det J / max |det J| of a hex
+    (``det_ratio_after``: where det J nearly vanishes inside a hex whose corners look fine) per start."""
+    print("| mesh | min SJ per start | median | least shortest / longest edge per start | least min det J / max "
+          "per start | farthest boundary vertex (of diag) |\n|---|---|---|---|---|---|")
     for name, m in _published_meshes(names):
         diag = float(np.linalg.norm(m.points.max(axis=0) - m.points.min(axis=0)))
-        got, ratio, far = [], [], 0.0
+        got, ratio, det, far = [], [], [], 0.0
         for seed in range(1, n + 1):
             P = m.points + 1e-12 * diag * np.random.default_rng(seed).standard_normal(m.points.shape)
             r = repair(P, m.hexes, jobs=jobs)  # 0: every core, as `hexsos repair`
             got.append(r.stats["min_sj_after"] if r.success else float("nan"))
             ratio.append(edge_ratio_summary(r.points, m.hexes)[0])
+            det.append(r.stats["det_ratio_after"])
             far = max(far, r.stats.get("boundary_max_distance", 0.0) / diag)
         print(f"| {name} | {' / '.join(f'{x:.3f}' for x in got)} | {np.median(got):.3f} | "
-              f"{' / '.join(f'{x:.4f}' for x in ratio)} | {100 * far:.2f}% |", flush=True)
+              f"{' / '.join(f'{x:.4f}' for x in ratio)} | {' / '.join(f'{x:.4f}' for x in det)} | {100 * far:.2f}% |",
+              flush=True)
 
 
 def _stage_seconds(st):

@@ -22,8 +22,7 @@ __all__ = ["screenshot", "histogram", "relative_min_det", "plot_history", "plot_
 def relative_min_det(result) -> np.ndarray:
     """min det J divided by the hex's scale (its largest |Bernstein coefficient|, about max |det J|):
     a size-free quality in [-1, 1], 1 for a parallelepiped."""
-    scale = np.where(result.scale > 0, result.scale, 1.0)
-    return result.min_det / scale
+    return result.relative_min_det
 
 
 def _pyvista():

@@ -63,6 +63,43 @@ def test_the_low_coefficients_gradients_are_the_full_ones_at_those_coefficients(
         assert np.allclose(dbl, db[hh, pp], rtol=1e-12, atol=1e-12 * np.abs(db).max())
 
 
+def test_held_coefficients_are_the_split_where_the_27_are_near_0():
+    """``held_coefficients``: a hex whose least coefficient is below ``split_below`` of its largest is held by the
+    216 coefficients of its split (a cube twisted by 110 degrees: valid, its 27 partly negative, its split's all
+    positive), with their gradients against central differences; the others by their 27, as before."""
+    from hexsos_plugins.meshrepair import kernels as nb
+    from hexsos_plugins.meshrepair.jointsteps import held_coefficients
+    from hexsos_plugins.examples import twisted_hex
+    from hexsos_plugins.meshrepair.optimize import bernstein_split_matrix
+
+    rng = np.random.default_rng(7)
+    P, H = structured_grid(1, 1, 1)
+    X = np.stack([twisted_hex(np.radians(110.0)), twisted_hex(np.radians(30.0)),
+                  P[H[0]] + 0.1 * rng.standard_normal((8, 3))])
+    S = bernstein_split_matrix()
+    b = bernstein_gradients(X)[0]
+    assert b[0].min() < 0 < b[1:].min()
+    least, largest, (hh, vals, db) = held_coefficients(X, 0.3)
+    c0 = S @ b[0]
+    assert least[0] == pytest.approx(c0.min()) and least[0] > 0 and largest[0] == pytest.approx(c0.max())
+    assert np.allclose(least[1:], b[1:].min(axis=1)) and np.allclose(largest[1:], b[1:].max(axis=1))
+    assert np.array_equal(np.sort(vals[hh == 0]), np.sort(c0[c0 < 0.3 * c0.max()]))
+    assert np.array_equal(np.sort(vals[hh == 1]), np.sort(b[1][b[1] < 0.3 * b[1].max()]))
+    h = 1e-6
+    for k in np.flatnonzero(hh == 0)[:6]:
+        q = int(np.flatnonzero(c0 == vals[k])[0])
+        for n in range(8):
+            for a in range(3):
+                Xp, Xm = X.copy(), X.copy()
+                Xp[0, n, a] += h
+                Xm[0, n, a] -= h
+                fd = (S[q] @ bernstein_gradients(Xp)[0][0] - S[q] @ bernstein_gradients(Xm)[0][0]) / (2 * h)
+                assert db[k, n, a] == pytest.approx(fd, rel=1e-5, abs=1e-6)
+    # and the kernel's split is the same
+    V = np.ascontiguousarray(X[0])
+    assert np.allclose(nb.hex_bernstein_split(V, np.arange(8, dtype=np.int64)[None])[0], c0, rtol=1e-12, atol=1e-12)
+
+
 def _stalled_ball():
     """A 3^3 cubed ball after the vertex steps with its band, where they stall: (V, hexes, boundary model, movable,
     the last vertex steps' info)."""
@@ -139,11 +176,12 @@ def test_published_cat_2_joint_steps_lift_the_worst_cluster():
                     reason="../shared/data/hexalab/kitten_with_bifur_3.mesh absent")
 def test_published_kitten_joint_steps_pass_hexes_with_a_coefficient_near_zero():
     """kitten_with_bifur_3 (published, 34,880 hexes): next to its worst hexes sit hexes with a Bernstein coefficient
-    of det J near 0 (5e-6 of their largest). The program holds it to first order; a step of the trust region's
-    size took it below 0 at second order, so every step was refused and the joint steps stopped at 0.277. Their
-    vertices now take steps of at most 0.3 sqrt(r) of their edge length, and the steps go on: past 0.285."""
+    of det J near 0 (5e-6 of their largest; of their split's, 0.006). The program holds it to first order; a step
+    of the trust region's size took it below 0 at second order, so every step was refused and the joint steps
+    stopped at 0.277, 0.05 above their start. Their vertices now take steps of at most 0.3 sqrt(r) of their edge
+    length, and the steps go on: from about 0.24 past 0.44."""
     _, before, after = _joint_stage("kitten_with_bifur_3.mesh")
-    assert before < 0.23 and after > 0.285, (before, after)
+    assert before < 0.26 and after > before + 0.2, (before, after)
 
 
 def test_rows_that_cannot_bind_leave_the_program_as_it_was():

@@ -88,6 +88,73 @@ def test_energy_gradients_match_finite_differences():
     assert prob.barrier_energy(x, 0.999)[0] == np.inf
 
 
+def test_the_split_is_det_js_coefficients_on_the_eight_half_cubes():
+    """``kernels.hex_bernstein_split``: block q = 4 i + 2 j + k of the 216 is det J's 27 Bernstein coefficients on
+    the half-size cube (i, j, k) of the reference cube, found independently: the trilinear map restricted to that
+    cube is the hex of its 8 corners' images, whose det J (in its own coordinates) is the parent's over 8. The same
+    numbers as
+    ``optimize.bernstein_split_matrix`` applied to the 27; a block in the wrong place fails."""
+    from hexsos_plugins.examples import random_hexes, unit_cube
+    from hexsos_plugins.meshrepair import kernels as nb
+
+    X = random_hexes(30, sigma=0.3, seed=5)
+    M = X.shape[0]
+    V, H = np.ascontiguousarray(X.reshape(-1, 3)), np.arange(8 * M, dtype=np.int64).reshape(M, 8)
+    C = nb.hex_bernstein_split(V, H)
+    B = nb.hex_bernstein(V, H)
+    assert np.abs(C - B @ op.bernstein_split_matrix().T).max() < 1e-14 * np.abs(B).max()
+    cube = unit_cube().astype(np.float64)
+    for q in range(8):
+        lo = 0.5 * np.array([q >> 2, (q >> 1) & 1, q & 1], dtype=np.float64)
+        uvw = lo + 0.5 * cube  # the half-size cube's corners, in the hex's node order
+        w = np.prod(np.where(cube[None, :, :] > 0, uvw[:, None, :], 1.0 - uvw[:, None, :]), axis=2)  # (8, 8)
+        Y = np.einsum("cn,mna->mca", w, X)
+        child = 8.0 * nb.hex_bernstein(np.ascontiguousarray(Y.reshape(-1, 3)), H)
+        assert np.abs(C[:, 27 * q:27 * (q + 1)] - child).max() < 1e-13 * np.abs(B).max()
+        if q:
+            assert np.abs(C[:, :27] - child).max() > 1e-3  # another block is not this cube's
+
+
+def test_a_twisted_hex_valid_with_negative_coefficients_passes_the_split_test_and_an_invalid_one_does_not():
+    """The repair's test of validity beyond the corners (``kernels.hex_positive``): the 27 coefficients positive, or
+    else the 216 of their split. A cube twisted by 110 degrees is valid (the kernel proves it) with negative
+    coefficients: it passes, and every stage's test takes it as valid (``cell_minima`` finite, ``Problem``
+    feasible, stage 2's barrier finite on its split and infinite on its 27). A hex valid at its corners and folded
+    inside fails everywhere. On 400 random hexes, noisy enough that half are invalid, every hex that passes is
+    proven valid by the kernel (4 of them pass by their split alone)."""
+    from hexsos_plugins.cells.quality import SAMPLES
+    from hexsos_plugins.examples import folding_twist, random_hexes, twisted_hex
+    from hexsos_plugins.meshrepair import kernels as nb
+
+    H = np.arange(8, dtype=np.int64)[None]
+    G, factor = SAMPLES["hexahedron"]
+    P = twisted_hex(np.radians(110.0))
+    assert nb.hex_bernstein(P, H).min() < 0 and hs.check(P, H).status[0] == 1
+    assert nb.hex_positive(P, H)[0] and np.isfinite(nb.cell_minima(P, H, np.ascontiguousarray(G), float(factor))[0])
+    prob = op.Problem(P, [("hexahedron", H)], [np.ones(1)], np.ones(8, bool))
+    assert prob.feasible_valid(P) and not prob.bad_cells(P)[0][0]
+    assert prob.barrier_energy(prob.x0(), -1.0)[0] == np.inf  # on its 27 coefficients: outside
+    prob.choose_split(P)
+    assert prob.blocks[0]["split"][0]
+    x = prob.x0()
+    f, g = prob.barrier_energy(x, -1.0)
+    d = np.random.default_rng(3).standard_normal(x.shape)
+    fd = (prob.barrier_energy(x + 1e-6 * d, -1.0)[0] - prob.barrier_energy(x - 1e-6 * d, -1.0)[0]) / 2e-6
+    assert np.isfinite(f) and g @ d == pytest.approx(fd, rel=1e-6)  # the split's transpose in the gradient
+
+    F = folding_twist(np.radians(150.0))
+    assert hs.check(F, H).status[0] == 0 and hs.check(F, H).invalid_inside_only[0]
+    assert not nb.hex_positive(F, H)[0] and nb.cell_minima(F, H, np.ascontiguousarray(G), float(factor))[0] == -np.inf
+    assert not op.Problem(F, [("hexahedron", H)], [np.ones(1)], np.ones(8, bool)).feasible_valid(F)
+
+    X = random_hexes(400, sigma=0.3, seed=11)
+    V, HH = np.ascontiguousarray(X.reshape(-1, 3)), np.arange(8 * 400, dtype=np.int64).reshape(400, 8)
+    ok, status = nb.hex_positive(V, HH), hs.check(V, HH).status
+    parent = nb.hex_bernstein(V, HH).min(axis=1) > 0
+    assert (status == 0).sum() > 100 and (ok & ~parent).sum() > 0
+    assert (status[ok] == 1).all()
+
+
 def test_energies_of_the_ideal_cube_are_their_closed_forms():
     # the unit cube at size 1: every corner Jacobian is the identity (F = 3, D = 1), every Bernstein coefficient
     # of det J is 1, every scaled Jacobian sample is 1 (8 corners and the centre)
@@ -656,6 +723,24 @@ def test_repair_reports_edge_ratios():
     assert r2.stats["short_edge_hexes_before"] == 1
 
 
+def test_repair_reports_det_js_least_over_largest():
+    """``det_ratio_before`` / ``_after``: the least over the hexes of min det J / max |det J| (the kernel's minimum
+    over its scale), before and after, in the report and its text; below 0 for an input with an inverted hex. A
+    cube twisted by 110 degrees (det J's least at its top face's centre, 0.329 of its largest) reports that."""
+    from hexsos_plugins.examples import twisted_hex
+
+    P, H = structured_grid(3)
+    rng = np.random.default_rng(4)
+    P = P + 0.12 * rng.standard_normal(P.shape)
+    r = hs.repair(P, H)
+    c0, c1 = hs.check(P, H), hs.check(r.points, H)
+    assert r.stats["det_ratio_before"] == float(np.min(c0.min_det / c0.scale)) < 0
+    assert r.stats["det_ratio_after"] == float(np.min(c1.min_det / c1.scale)) > 0
+    assert f"det J min / max   {r.stats['det_ratio_before']:.4f} -> {r.stats['det_ratio_after']:.4f}" in r.summary()
+    c = hs.check(twisted_hex(np.radians(110.0)), np.arange(8)[None])
+    assert c.relative_min_det[0] == pytest.approx(0.329, abs=1e-3)
+
+
 def test_published_rockarm_default_repair_beats_the_surface_cap():
     """rockarm (HexaLab, 11 hexes inverted at the boundary), read in place: the default repair certifies it at a
     minimum scaled Jacobian above 0.7 with every boundary vertex within 2% of the diagonal of the input surface;
@@ -1004,7 +1089,7 @@ def test_the_energies_on_the_regions_numbering_equal_those_on_the_meshs_to_the_b
                 M = b["conn"].shape[0]
                 ec, mc, ok, gc = np.empty(M), np.empty(M), np.empty(M, dtype=np.bool_), np.empty((M, 8, 3))
                 assert nb.barrier_cells(V, b["conn"], b["Gq3"], float(b["factor"]), arg, b["s"], op.BETA, True,
-                                        True, ec, mc, ok, gc)
+                                        True, ec, mc, ok, gc, b["split"])
                 total += float(ec.sum())
                 nb.scatter_cells(g, b["conn"], gc)
         if stage == 2:

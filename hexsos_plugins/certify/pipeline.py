@@ -116,6 +116,13 @@ class CheckResult:
         return self.min_det - self.lower_bound
 
     @property
+    def relative_min_det(self) -> np.ndarray:
+        """min det J over each cell divided by its scale (its largest |Bernstein coefficient|, about max |det J|):
+        a size-free quality in [-1, 1], 1 for a parallelepiped; low where det J nearly vanishes inside a cell whose
+        corners look fine."""
+        return self.min_det / np.where(self.scale > 0, self.scale, 1.0)
+
+    @property
     def valid(self) -> np.ndarray:
         return self.status == 1
 

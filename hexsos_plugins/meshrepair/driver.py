@@ -1159,6 +1159,8 @@ class _Optimize:
             "invalid_before": int((r0.status == 0).sum()), "undecided_before": int((r0.status == -1).sum()),
             "invalid_after": int((r.status == 0).sum()), "undecided_after": int((r.status == -1).sum()),
             "min_det_before": float(np.min(r0.min_det)), "min_det_after": float(np.min(r.min_det)),
+            "det_ratio_before": float(np.min(r0.relative_min_det)),
+            "det_ratio_after": float(np.min(r.relative_min_det)),
             "min_sj_target": self.min_sj, "min_sj_target_reached": reached,
             "untangled": bool(untangled), "untangle_outer": int(info1["outer"]),
             "untangle_iterations": int(info1["iterations"]), "smoothing_sweeps": int(info1.get("smoothing_sweeps", 0)),

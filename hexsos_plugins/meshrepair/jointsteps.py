@@ -9,9 +9,11 @@ at least ``t`` plus :data:`KEEP` of its height above the minimum; within a trust
 mean edge length); in each vertex's freedom (inside any direction; boundary vertices within their band, as the
 vertex steps' last pass, the others where they are); with each hex's shortest / longest edge, linearized, above the
 lesser of its own and :data:`~hexsos_plugins.meshrepair.localopt.RATIO_FLOOR`, and its low Bernstein coefficients of
-det J, linearized, above half their value (the vertices of a hex with a coefficient near 0 take shorter steps:
-:data:`NEAR_ZERO_STEP`). The step is kept only where the mesh's least sample rises, every Bernstein coefficient of
-every hex stays positive, no hex's edge ratio falls below its floor (less :data:`RATIO_SLACK`) and every banded
+det J (those of their split where the 27 come near 0: :func:`held_coefficients`), linearized, above half their value
+(the vertices of a hex with a coefficient near 0 take shorter steps: :data:`NEAR_ZERO_STEP`). The step is kept only
+where the mesh's least sample rises, every hex passes the test of validity (its coefficients positive, or those of
+their split: :mod:`hexsos_plugins.meshrepair.optimize`), no hex's edge ratio falls below its floor (less
+:data:`RATIO_SLACK`) and every banded
 vertex stays in its band (exactly, not linearized); otherwise half and a quarter of the step are tried, and the
 trust region halves (but after half of it kept: :data:`HALF_KEEPS`). So the steps end where they started or higher,
 valid, with no edge collapsed; the certificate is still the kernel's.
@@ -27,9 +29,9 @@ import numpy as np
 from ..cells.hexahedron import EDGES
 from ..cells.quality import SAMPLES, hex_edge_ratio
 from .localopt import BAND_BELOW, RATIO_FLOOR, band_limits, vertex_freedoms
-from .optimize import bernstein_matrix, cof3, hex_bernstein_samples
+from .optimize import SPLIT_BELOW, bernstein_matrix, bernstein_split_matrix, cof3, hex_bernstein_samples
 
-__all__ = ["joint_steps", "sample_gradients", "bernstein_gradients", "binding_rows", "next_delta", "SPAN", "MAX_HEXES",
+__all__ = ["joint_steps", "sample_gradients", "bernstein_gradients", "held_coefficients", "binding_rows", "next_delta", "SPAN", "MAX_HEXES",
            "PLATEAU", "PLATEAU_HEXES", "RATIO_SLACK", "HALF_KEEPS", "KEEP"]
 
 #: The hexes whose vertices move: within this of the minimum, the :data:`MAX_HEXES` lowest at most (measured on
@@ -97,6 +99,7 @@ MIN_GAIN = 1e-4
 
 _GB = hex_bernstein_samples()
 _TB = bernstein_matrix()
+_SPLIT = bernstein_split_matrix()
 _E = np.asarray(EDGES)
 
 
@@ -135,6 +138,34 @@ def bernstein_gradients(X, low=None):
     hh, pp = np.nonzero(b < low * b.max(axis=1)[:, None])
     u, inv = np.unique(hh, return_inverse=True)
     return b, (hh, pp, np.einsum("ps,psna->pna", _TB[pp], sample_det_gradients(J[u])[inv.ravel()]))
+
+
+def held_coefficients(X, low, split_below=SPLIT_BELOW):
+    """The coefficients of det J the joint steps hold, of hexes X (M, 8, 3): each hex's 27, or where the least of
+    them is below ``split_below`` of the largest, the 216 of their split (one subdivision,
+    :func:`hexsos_plugins.meshrepair.optimize.bernstein_split_matrix`: the 27's least is often their slack, not
+    det J's; kitten_with_bifur_3's steps stopped at hexes whose least was 6e-10 of their largest and det J's least
+    0.1 of it). Returns (least (M,), largest (M,), (hh (P,), values (P,), gradients (P, 8, 3))): every hex's least
+    and largest held coefficient, and those below ``low`` times their hex's largest with their gradients."""
+    b, (hh, pp, db) = bernstein_gradients(X, low=low)
+    least, largest = b.min(axis=1), b.max(axis=1)
+    split = least < split_below * largest
+    if not split.any():
+        return least, largest, (hh, b[hh, pp], db)
+    keep = ~split[hh]
+    hh, vals, db = hh[keep], b[hh[keep], pp[keep]], db[keep]
+    su = np.flatnonzero(split)
+    c = b[su] @ _SPLIT.T  # (S, 216)
+    least[su], largest[su] = c.min(axis=1), c.max(axis=1)
+    ss, qq = np.nonzero(c < low * largest[su][:, None])
+    if ss.size:
+        J = np.tensordot(X[su], _GB, axes=([1], [1])).transpose(0, 2, 1, 3)  # (S, 27, 3, 3)
+        dJ = np.matmul(_GB[None], _cofactors(J).transpose(0, 1, 3, 2))  # (S, 27, 8, 3): det J's at the samples
+        dc = np.einsum("qs,qsna->qna", (_SPLIT @ _TB)[qq], dJ[ss])
+        hh = np.concatenate([hh, su[ss]])
+        vals = np.concatenate([vals, c[ss, qq]])
+        db = np.concatenate([db, dc])
+    return least, largest, (hh, vals, db)
 
 
 def _rows(coef, vid, col, B, row):
@@ -266,15 +297,15 @@ def joint_steps(V, H, movable, *, boundary=None, deadline=None, target=None, ban
         rows, cols, vals, rhs = [r, np.arange(nh * K)], [c, np.full(nh * K, nv)], [v, np.ones(nh * K)], [
             (1.0 - KEEP) * (sj.ravel() - m)]
         n_rows = nh * K
-        # low Bernstein coefficients: -grad . dx <= b / 2 (each row scaled by its hex's largest coefficient)
-        b, (hh, pp, db) = bernstein_gradients(X, low=BERNSTEIN_LOW)
-        scale = b.max(axis=1)
+        # low Bernstein coefficients (of the split where they are near 0, :func:`held_coefficients`):
+        # -grad . dx <= b / 2 (each row scaled by its hex's largest coefficient)
+        least, scale, (hh, bl, db) = held_coefficients(X, BERNSTEIN_LOW)
         if hh.size:
             coef = -(db / scale[hh, None, None])  # (P, 8, 3)
             rowp = n_rows + np.arange(hh.size)
             r, c, v = _rows(coef.reshape(-1, 3), Hx[hh].ravel(), col, B, np.repeat(rowp, 8))
             rows.append(r), cols.append(c), vals.append(v)
-            rhs.append(0.5 * b[hh, pp] / scale[hh])
+            rhs.append(0.5 * bl / scale[hh])
             n_rows += hh.size
         # edge floors: |e_i|^2 >= f^2 |e_j|^2 for the pairs near it, -grad . dx <= |e_i|^2 - f^2 |e_j|^2
         e = X[:, _E[:, 1]] - X[:, _E[:, 0]]
@@ -308,7 +339,7 @@ def joint_steps(V, H, movable, *, boundary=None, deadline=None, target=None, ban
         # of their edge length: the program holds that coefficient to first order only, and the second order, of
         # the step squared, took it below 0 (kitten_with_bifur_3: r 5e-6, every step refused down to 1e-4 of the
         # edge length; the steps stopped at 0.277, with this at 0.296-0.331)
-        rel = np.maximum(b.min(axis=1), 0.0) / scale
+        rel = np.maximum(least, 0.0) / scale
         rv = np.ones(N)
         np.minimum.at(rv, Hx.ravel(), np.repeat(rel, 8))
         dv = np.minimum(delta, NEAR_ZERO_STEP * np.sqrt(rv[verts]))

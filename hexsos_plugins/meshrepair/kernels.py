@@ -251,6 +251,142 @@ def _to_bernstein(f, forward):
             _axis_T(f, 1, 9 * i + 3 * j, forward)  # along c
 
 
+#: One subdivision of a quadratic Bernstein polynomial on [0, 1] at 1/2: (side, new, old), the coefficients on the
+#: left half (side 0) and the right half (side 1) from the polynomial's own (de Casteljau)
+_HALF = np.array([[[1.0, 0.0, 0.0], [0.5, 0.5, 0.0], [0.25, 0.5, 0.25]],
+                  [[0.25, 0.5, 0.25], [0.0, 0.5, 0.5], [0.0, 0.0, 1.0]]])
+#: The length of a hex's coefficient scratch with room for its split (:func:`_split`): the 27 coefficients, the
+#: 216 of the split, and the two passes between (54, 108)
+SPLIT_SCRATCH = 27 + 216 + 54 + 108
+
+
+@njit(cache=True, inline="always")
+def _split(f):
+    """One subdivision of the hex's 27 coefficients f[0:27] (index 9 a + 3 b + c) into the 216 of its 8 half-size
+    cubes, f[27 + 27 q + 9 a + 3 b + c] for the cube q = 4 i + 2 j + k (the half i along u, j along v, k along w):
+    convex combinations of the 27, so positive wherever they all are, and closer to det J. f[243:405] is scratch."""
+    for i in range(2):  # along u
+        for a in range(3):
+            for r in range(9):
+                acc = 0.0
+                for a2 in range(3):
+                    w = _HALF[i, a, a2]
+                    if w != 0.0:
+                        acc += w * f[9 * a2 + r]
+                f[243 + 27 * i + 9 * a + r] = acc
+    for i in range(2):  # along v
+        for j in range(2):
+            for a in range(3):
+                for bb in range(3):
+                    for cc in range(3):
+                        acc = 0.0
+                        for b2 in range(3):
+                            w = _HALF[j, bb, b2]
+                            if w != 0.0:
+                                acc += w * f[243 + 27 * i + 9 * a + 3 * b2 + cc]
+                        f[297 + 27 * (2 * i + j) + 9 * a + 3 * bb + cc] = acc
+    for ij in range(4):  # along w
+        for k in range(2):
+            for a in range(3):
+                for bb in range(3):
+                    for cc in range(3):
+                        acc = 0.0
+                        for c2 in range(3):
+                            w = _HALF[k, cc, c2]
+                            if w != 0.0:
+                                acc += w * f[297 + 27 * ij + 9 * a + 3 * bb + c2]
+                        f[27 + 27 * (2 * ij + k) + 9 * a + 3 * bb + cc] = acc
+
+
+@njit(cache=True, inline="always")
+def _split_T(f):
+    """The transpose of :func:`_split`: f[0:27] = its transpose applied to f[27:243] (a gradient with respect to the
+    216 coefficients -> with respect to the 27); f[243:405] is scratch."""
+    for x in range(243, 405):
+        f[x] = 0.0
+    for ij in range(4):
+        for k in range(2):
+            for a in range(3):
+                for bb in range(3):
+                    for cc in range(3):
+                        y = f[27 + 27 * (2 * ij + k) + 9 * a + 3 * bb + cc]
+                        for c2 in range(3):
+                            w = _HALF[k, cc, c2]
+                            if w != 0.0:
+                                f[297 + 27 * ij + 9 * a + 3 * bb + c2] += w * y
+    for i in range(2):
+        for j in range(2):
+            for a in range(3):
+                for bb in range(3):
+                    for cc in range(3):
+                        y = f[297 + 27 * (2 * i + j) + 9 * a + 3 * bb + cc]
+                        for b2 in range(3):
+                            w = _HALF[j, bb, b2]
+                            if w != 0.0:
+                                f[243 + 27 * i + 9 * a + 3 * b2 + cc] += w * y
+    for x in range(27):
+        f[x] = 0.0
+    for i in range(2):
+        for a in range(3):
+            for r in range(9):
+                y = f[243 + 27 * i + 9 * a + r]
+                for a2 in range(3):
+                    w = _HALF[i, a, a2]
+                    if w != 0.0:
+                        f[9 * a2 + r] += w * y
+
+
+@njit(cache=True, inline="always")
+def _positive(f):
+    """Whether the hex whose 27 coefficients are f[0:27] (scratch up to :data:`SPLIT_SCRATCH`) passes the
+    repair's test of validity: its 27 coefficients all positive, or else the 216 of their split (:func:`_split`)."""
+    ok = True
+    for p in range(27):
+        if not (f[p] > 0.0):
+            ok = False
+            break
+    if ok:
+        return True
+    _split(f)
+    for q in range(27, 243):
+        if not (f[q] > 0.0):
+            return False
+    return True
+
+
+@njit(cache=True)
+def hex_positive(V, conn):
+    """Per hex (M,) bool: :func:`_positive` (the repair's test of validity beyond the corners)."""
+    M = conn.shape[0]
+    out = np.empty(M, dtype=np.bool_)
+    XU = np.empty((3, 3, 3))
+    XV = np.empty((3, 3, 3))
+    XW = np.empty((3, 3, 3))
+    f = np.empty(SPLIT_SCRATCH)
+    for m in range(M):
+        _hex_grid(V, conn, m, XU, XV, XW, f)
+        _to_bernstein(f, True)
+        out[m] = _positive(f)
+    return out
+
+
+@njit(cache=True)
+def hex_bernstein_split(V, conn):
+    """The 216 Bernstein coefficients of det J of every hex on its 8 half-size cubes (:func:`_split`): (M, 216)."""
+    M = conn.shape[0]
+    out = np.empty((M, 216))
+    XU = np.empty((3, 3, 3))
+    XV = np.empty((3, 3, 3))
+    XW = np.empty((3, 3, 3))
+    f = np.empty(SPLIT_SCRATCH)
+    for m in range(M):
+        _hex_grid(V, conn, m, XU, XV, XW, f)
+        _to_bernstein(f, True)
+        _split(f)
+        out[m] = f[27:243]
+    return out
+
+
 @njit(cache=True)
 def hex_bernstein(V, conn):
     """The 27 Bernstein coefficients of det J of every hex: (M, 27)."""
@@ -369,9 +505,12 @@ BARRIER_PARTS_MIN_CELLS = 4096
 BARRIER_PARTS = 4
 
 
-def barrier_cells(V, conn, G, factor, t, s, beta, hexes, want_grad, ecell, mcell, okc, gcell):
+def barrier_cells(V, conn, G, factor, t, s, beta, hexes, want_grad, ecell, mcell, okc, gcell, split):
     """Stage 2's terms per cell: ecell (M,) energy, mcell (M,) min SJ, okc (M,) feasible,
-    gcell (M, n, 3) the cell's vertex gradient (when ``want_grad``). Returns whether every cell is feasible; when
+    gcell (M, n, 3) the cell's vertex gradient (when ``want_grad``); ``split`` (M,) bool: the hexes whose barrier is
+    on the 216 coefficients of their split (:func:`_split`, weight ``beta`` / 8) instead of their 27 (a coefficient
+    near 0 is often the bound's slack, not det J's: kitten_with_bifur_3's rounds stopped at hexes whose least
+    coefficient was 6e-6 of their largest, det J's least 0.1 of it). Returns whether every cell is feasible; when
     not, the rows are incomplete (the work stops at the first infeasible cell of a part). On the kernel's threads
     in parts for :data:`BARRIER_PARTS_MIN_CELLS` cells and more."""
     from ..kernel.pool import run_all, threads
@@ -379,10 +518,11 @@ def barrier_cells(V, conn, G, factor, t, s, beta, hexes, want_grad, ecell, mcell
     M = conn.shape[0]
     stop = np.zeros(1, dtype=np.int64)  # set by the first infeasible cell: every part stops at its next cell
     if M < BARRIER_PARTS_MIN_CELLS or threads() <= 1:
-        return _barrier_serial(V, conn, G, factor, t, s, beta, hexes, want_grad, ecell, mcell, okc, gcell, stop)
+        return _barrier_serial(V, conn, G, factor, t, s, beta, hexes, want_grad, ecell, mcell, okc, gcell, split,
+                               stop)
     cuts = np.linspace(0, M, BARRIER_PARTS + 1).astype(np.int64)
     return all(run_all([partial(_barrier_serial, V, conn[lo:hi], G, factor, t, s[lo:hi], beta, hexes, want_grad,
-                                ecell[lo:hi], mcell[lo:hi], okc[lo:hi], gcell[lo:hi], stop)
+                                ecell[lo:hi], mcell[lo:hi], okc[lo:hi], gcell[lo:hi], split[lo:hi], stop)
                         for lo, hi in zip(cuts[:-1], cuts[1:])]))
 
 
@@ -405,13 +545,15 @@ def _sample_nonzeros(G, n):
 
 
 @njit(cache=True, nogil=True)
-def _barrier_serial(V, conn, G, factor, t, s, beta, hexes, want_grad, ecell, mcell, okc, gcell, stop):
+def _barrier_serial(V, conn, G, factor, t, s, beta, hexes, want_grad, ecell, mcell, okc, gcell, split, stop):
     nz, gi, gv = _sample_nonzeros(G, conn.shape[1])
-    return _barrier_chunk(V, conn, nz, gi, gv, factor, t, s, beta, hexes, want_grad, ecell, mcell, okc, gcell, stop)
+    return _barrier_chunk(V, conn, nz, gi, gv, factor, t, s, beta, hexes, want_grad, ecell, mcell, okc, gcell, split,
+                          stop)
 
 
 @njit(cache=True)
-def _barrier_chunk(V, conn, nz, gi, gv, factor, t, s, beta, hexes, want_grad, ecell, mcell, okc, gcell, stop):
+def _barrier_chunk(V, conn, nz, gi, gv, factor, t, s, beta, hexes, want_grad, ecell, mcell, okc, gcell, split,
+                   stop):
     """The cells of one part of :func:`barrier_cells` (its scratch arrays allocated once per part); stops at the
     first infeasible cell, its own (setting ``stop[0]``) or another part's (``stop[0]`` set)."""
     K = nz.shape[0]
@@ -430,8 +572,8 @@ def _barrier_chunk(V, conn, nz, gi, gv, factor, t, s, beta, hexes, want_grad, ec
     eu = np.empty((2, 2, 3))
     ev = np.empty((2, 2, 3))
     ew = np.empty((2, 2, 3))
-    b = np.empty(27)
-    db = np.empty(27)
+    b = np.empty(SPLIT_SCRATCH)
+    db = np.empty(SPLIT_SCRATCH)
     for m in range(conn.shape[0]):
         if stop[0] != 0:
             return False
@@ -496,7 +638,11 @@ def _barrier_chunk(V, conn, nz, gi, gv, factor, t, s, beta, hexes, want_grad, ec
             inv3 = 1.0 / (s[m] ** 3)
             prod = 1.0
             lsum = 0.0
-            for p in range(27):
+            first, last, wb = 0, 27, beta
+            if split[m]:
+                _split(b)
+                first, last, wb = 27, 243, beta / 8.0
+            for p in range(first, last):
                 if not (b[p] > 0.0):
                     ok = False
                     break
@@ -504,10 +650,12 @@ def _barrier_chunk(V, conn, nz, gi, gv, factor, t, s, beta, hexes, want_grad, ec
                 if prod < _SMALL or prod > _BIG:
                     lsum += np.log(prod)
                     prod = 1.0
-                db[p] = -beta / b[p]
+                db[p] = -wb / b[p]
             if ok:
-                total -= beta * (lsum + np.log(prod))
+                total -= wb * (lsum + np.log(prod))
                 if want_grad:
+                    if split[m]:
+                        _split_T(db)
                     _to_bernstein(db, False)
                     _hex_grid_grad_local(gl, XU, XV, XW, db, GU, GV, GW)
         ecell[m] = total
@@ -570,8 +718,9 @@ def scatter_cells(g, conn, gcell):
 
 @njit(cache=True, inline="always")
 def _cell_eval(V, conn, m, G, factor, ref, tau, out, E, C, XU, XV, XW, b, eu, ev, ew):
-    """Hex m: out[0] its least scaled Jacobian sample (-inf when a Bernstein coefficient of det J is <= 0),
-    out[1] the sum over its samples of exp(-(sj - ref) / tau)."""
+    """Hex m: out[0] its least scaled Jacobian sample (-inf when it fails :func:`_positive`: a Bernstein coefficient
+    of det J <= 0, also after one subdivision), out[1] the sum over its samples of exp(-(sj - ref) / tau). ``b``
+    has room for the split (:data:`SPLIT_SCRATCH`)."""
     K = G.shape[0]
     smin = np.inf
     soft = 0.0
@@ -598,11 +747,10 @@ def _cell_eval(V, conn, m, G, factor, ref, tau, out, E, C, XU, XV, XW, b, eu, ev
         soft += np.exp(-(sj - ref) / tau)
     _hex_grid_s(V, conn, m, XU, XV, XW, b, eu, ev, ew)
     _to_bernstein(b, True)
-    for p in range(27):
-        if not (b[p] > 0.0):
-            out[0] = -np.inf
-            out[1] = np.inf
-            return
+    if not _positive(b):
+        out[0] = -np.inf
+        out[1] = np.inf
+        return
     out[0] = smin
     out[1] = soft
 
@@ -669,7 +817,7 @@ def sweep(V, conn, G, factor, order, ptr, inc, loc, proj, step0, tau, max_steps,
     XU = np.empty((3, 3, 3))
     XV = np.empty((3, 3, 3))
     XW = np.empty((3, 3, 3))
-    b = np.empty(27)
+    b = np.empty(SPLIT_SCRATCH)
     eu = np.empty((2, 2, 3))
     ev = np.empty((2, 2, 3))
     ew = np.empty((2, 2, 3))
@@ -795,7 +943,7 @@ def sweep(V, conn, G, factor, order, ptr, inc, loc, proj, step0, tau, max_steps,
 
 @njit(cache=True)
 def cell_minima(V, conn, G, factor):
-    """Least scaled Jacobian sample of every hex (-inf where a Bernstein coefficient is <= 0)."""
+    """Least scaled Jacobian sample of every hex (-inf where it fails :func:`_positive`)."""
     M = conn.shape[0]
     out = np.empty(M)
     E = np.empty((3, 3))
@@ -803,7 +951,7 @@ def cell_minima(V, conn, G, factor):
     XU = np.empty((3, 3, 3))
     XV = np.empty((3, 3, 3))
     XW = np.empty((3, 3, 3))
-    b = np.empty(27)
+    b = np.empty(SPLIT_SCRATCH)
     eu = np.empty((2, 2, 3))
     ev = np.empty((2, 2, 3))
     ew = np.empty((2, 2, 3))
@@ -955,8 +1103,10 @@ SIGNATURES = {
     "untangle_corners": (_F2, _I2, _F3, _F1, _f8, _f8, _F2, _b1),
     "untangle_edges": (_F2, _I2, _I2, _I2, _F1, _f8, _f8, _F2, _b1),
     "untangle_bernstein": (_F2, _I2, _I1, types.float64[:, :, :], _F2, _F1, _f8, _f8, _F2, _b1),
-    "_barrier_serial": (_F2, _I2, _F3, _f8, _f8, _F1, _f8, _b1, _b1, _F1, _F1, types.boolean[::1], _F3, _I1),
+    "_barrier_serial": (_F2, _I2, _F3, _f8, _f8, _F1, _f8, _b1, _b1, _F1, _F1, types.boolean[::1], _F3,
+                        types.boolean[::1], _I1),
     "hex_bernstein": (_F2, _I2),
+    "hex_positive": (_F2, _I2),
     "hex_edge_term": (_F2, _I2, _F1, _f8, _F2),
     "scatter_cells": (_F2, _I2, _F3),
     "edge_ratios2": (_F2, _I2, _F1),

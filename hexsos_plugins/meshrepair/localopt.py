@@ -7,7 +7,8 @@ worst first, to raise the least scaled Jacobian sample of the hexes around it (t
 curve along its tangent, feature corners and pinned vertices not at all; with a band
 (:attr:`hexsos_plugins.meshrepair.boundary.BoundaryModel.tolerance`), boundary vertices move in any direction but
 stay within the band's width of their surface, curve or corner. No accepted step lowers the mesh's minimum,
-makes a Bernstein coefficient of a hex non-positive or takes a hex's shortest / longest edge below the lesser of
+fails a hex's test of validity (its Bernstein coefficients of det J positive, or those of their split: see
+:mod:`hexsos_plugins.meshrepair.optimize`) or takes a hex's shortest / longest edge below the lesser of
 its own and :data:`RATIO_FLOOR`, so the stage ends where it started or higher, valid, with no edge collapsed.
 Sweeps repeat until the minimum rises by less than ``min_gain`` in ``patience`` sweeps, or the deadline.
 """

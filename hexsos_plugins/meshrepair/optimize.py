@@ -12,7 +12,7 @@ Stage 1, untangling (Garanzha, Garanzha, Kaporin et al. 2021, *Foldover-free map
     theta = 1/128, with L-BFGS and the eps schedule of the paper (eps shrinks as the mesh untangles). Hexes whose
     Bernstein coefficients are not all positive (a fold inside a corner-valid hex, or a corner still inverted)
     add the regularized barrier ``theta_b (b^2 + 1) / chi(b, eps)`` on their 27 coefficients ``b`` (in units of
-    s^3). Stops as soon as every corner determinant and every hex's 27 coefficients are positive.
+    s^3). Stops as soon as every corner determinant is positive and every hex passes the test of validity below.
 
     Sample points, measured (``python -m comparison.bench_repair --samples``): corners for every cell plus the
     27 coefficients only for the hexes whose coefficients are not all positive. Corners alone cannot see a fold
@@ -24,10 +24,12 @@ Stage 1, untangling (Garanzha, Garanzha, Kaporin et al. 2021, *Foldover-free map
 Stage 2, quality
     minimize ``-sum_k log(SJ_k - t) - beta sum_p log(b_p / s^3) + gamma sum_e phi(l_e / s)`` (SJ_k the normalized
     corner determinants whose minimum is Verdict's scaled Jacobian, b_p the 27 Bernstein coefficients of every hex,
-    beta = 0.01, l_e the lengths of the hexes' edges shorter than their hex's size s, ``phi(r) = (r^-2 + r^2) / 2
-    - 1``, gamma = :data:`EDGE_WEIGHT`: without it the rounds shrink edges toward 0, which the scaled Jacobian
-    does not see) with L-BFGS and a backtracking line search that rejects any step making some SJ_k <= t or some
-    b_p <= 0: every accepted iterate has all coefficients positive, i.e. is valid by construction. After each
+    or the 216 of their split, weighted by 1/8, where the least of the 27 is below :data:`SPLIT_BELOW` of their
+    largest at the start of a round, beta = 0.01, l_e the lengths of the hexes' edges shorter than their hex's size
+    s, ``phi(r) = (r^-2 + r^2) / 2 - 1``, gamma = :data:`EDGE_WEIGHT`: without it the rounds shrink edges toward 0,
+    which the scaled Jacobian does not see) with L-BFGS and a backtracking line search that rejects any step making
+    some SJ_k <= t or some b_p <= 0: every accepted iterate has those coefficients positive, i.e. is valid by
+    construction. After each
     solve t moves 90% of the way to the new minimum (measured: 11 rounds to the bunny's plateau, 18 with half); it
     stops at the target, when the minimum stops rising, or at the budget. (beta = 0.1 held the bunny at min SJ
     0.15, 0.01 and 0.001 reached 0.51.)
@@ -44,6 +46,14 @@ The energies and their analytic gradients run in the compiled loops of :mod:`hex
 (numba, IEEE double precision, no fast-math; on large blocks in parts on the kernel's threads), their one
 implementation: tested against finite differences and against closed forms on the ideal cube. The measures of
 the current coordinates (corner determinants, scaled Jacobian samples, Bernstein coefficients) are numpy.
+
+The test of validity beyond the corners, in every stage (:meth:`Problem.positive`, and the compiled steps of
+:mod:`hexsos_plugins.meshrepair.localopt` and :mod:`hexsos_plugins.meshrepair.jointsteps`): a hex's 27 Bernstein
+coefficients of det J all positive, or else the 216 of one subdivision of them (det J's coefficients on its 8
+half-size cubes, convex combinations of the 27, closer to det J). The 27 alone held the optimizer at hexes whose
+least coefficient was their slack, not det J's: kitten_with_bifur_3's rounds stopped at a hex with a coefficient
+6e-6 of its largest, det J's least there 0.1 of it, and cat_2's steps at its folded hex. The certificate is still
+the kernel's.
 """
 
 from __future__ import annotations
@@ -56,8 +66,8 @@ import numpy as np
 from ..cells.elements import ELEMENTS
 from ..cells.quality import IDEAL, SAMPLES, hex_edge_ratio
 
-__all__ = ["Problem", "untangle", "improve", "recovers_in_time", "hex_bernstein_samples", "bernstein_matrix", "det3",
-           "cof3", "bernstein_coefficients", "bernstein_vertex_gradient"]
+__all__ = ["Problem", "untangle", "improve", "recovers_in_time", "hex_bernstein_samples", "bernstein_matrix",
+           "bernstein_split_matrix", "det3", "cof3", "bernstein_coefficients", "bernstein_vertex_gradient", "SPLIT_BELOW"]
 
 THETA = 1.0 / 128.0  # weight of the volume term in stage 1 (Garanzha et al.)
 BOUNDARY_WEIGHT = 100.0  # w of stage 1's boundary penalty
@@ -68,6 +78,10 @@ THETA_B = 3.0  # weight of the Bernstein barrier in stage 1 (bunny, sliding, mea
 UNTANGLE_PARTS_MIN_CELLS = 8192
 UNTANGLE_PARTS = 4
 BETA = 0.01  # weight of the Bernstein log-barrier in stage 2 (measured on the bunny: 0.1 holds the min SJ at 0.15)
+#: Stage 2's barrier is on the 216 coefficients of one subdivision of a hex whose least coefficient is below this
+#: fraction of its largest at the start of a round (:func:`hexsos_plugins.meshrepair.kernels.barrier_cells`), and
+#: on its 27 otherwise
+SPLIT_BELOW = 0.05
 # weight of stage 2's edge term on hexes, ``(r^-2 + r^2) / 2 - 1`` per edge shorter than the hex's size s (r its
 # length over s; 0 from r = 1 on), on every edge: the scaled Jacobian does not see an edge's length, and without it
 # the rounds shrank edges toward 0 (on kitten_with_bifur_3 the hexes with an edge under 5% of their longest went 13
@@ -135,6 +149,15 @@ def bernstein_matrix() -> np.ndarray:
     """T (27, 27): Bernstein coefficients = T @ (det J at {0, 1/2, 1}^3), index 9 a + 3 b + c (a along u)."""
     t = np.array([[1.0, 0.0, 0.0], [-0.5, 2.0, -0.5], [0.0, 0.0, 1.0]])
     return np.kron(np.kron(t, t), t)
+
+
+def bernstein_split_matrix() -> np.ndarray:
+    """S (216, 27): the Bernstein coefficients of det J on a hex's 8 half-size cubes = S @ its 27 coefficients,
+    row 27 q + 9 a + 3 b + c for the cube q = 4 i + 2 j + k (the half i along u, j along v, k along w), as
+    :func:`hexsos_plugins.meshrepair.kernels.hex_bernstein_split`."""
+    half = (np.array([[1.0, 0.0, 0.0], [0.5, 0.5, 0.0], [0.25, 0.5, 0.25]]),
+            np.array([[0.25, 0.5, 0.25], [0.0, 0.5, 0.5], [0.0, 0.0, 1.0]]))
+    return np.vstack([np.kron(np.kron(half[q >> 2], half[(q >> 1) & 1]), half[q & 1]) for q in range(8)])
 
 
 def hex_bernstein_samples() -> np.ndarray:
@@ -236,7 +259,8 @@ class Problem:
             self.blocks.append({"name": name, "rows": rows, "conn": np.ascontiguousarray(conn[rows]),
                                 "s": np.ascontiguousarray(np.asarray(s, dtype=np.float64)[rows]), "Gw": _gm(Gw),
                                 "Gq": _gm(G), "Gw3": np.ascontiguousarray(Gw), "Gq3": np.ascontiguousarray(G),
-                                "edges": edge_pairs(Gw), "factor": factor, "hex": name == "hexahedron"})
+                                "edges": edge_pairs(Gw), "factor": factor, "hex": name == "hexahedron",
+                                "split": np.zeros(rows.size, dtype=np.bool_)})
         # the energies run on the vertices of these cells (and the free ones) alone, numbered apart: their arrays
         # then have the region's size, not the mesh's (a region of 8,855 hexes in the 38,086 vertices of the
         # stress-tested kitten_with_bifur_3: stage 1's energy 9.1 -> 7.6 ms, the same numbers to the bit, every
@@ -297,23 +321,37 @@ class Problem:
                 out.append(np.where(L > 0, b["factor"] * det3(E) / L, -np.inf))
         return out
 
+    def positive(self, V):
+        """Per hex block: (M,) bool, the hexes whose 27 coefficients are positive, or else the 216 of their split
+        (:func:`hexsos_plugins.meshrepair.kernels.hex_positive`); None for other blocks."""
+        return [_nb.hex_positive(V, b["conn"]) if b["hex"] else None for b in self.blocks]
+
+    def choose_split(self, V):
+        """Stage 2's barrier from here on: on the split's 216 coefficients of the hexes whose least coefficient at
+        V is below :data:`SPLIT_BELOW` of their largest (every hex with one <= 0 among them), on the 27 of the
+        others."""
+        for b, bb in zip(self.blocks, self.bernstein(V)):
+            if bb is not None:
+                b["split"] = np.ascontiguousarray(bb.min(axis=1) < SPLIT_BELOW * bb.max(axis=1))
+
     def feasible_valid(self, V):
-        """Every corner determinant and every hex coefficient positive (a sufficient validity condition)."""
+        """Every corner determinant positive and every hex positive (:meth:`positive`): a sufficient validity
+        condition."""
         for d in self.corner_dets(V):
             if d.size and d.min() <= 0:
                 return False
-        for bb in self.bernstein(V):
-            if bb is not None and bb.size and bb.min() <= 0:
+        for ok in self.positive(V):
+            if ok is not None and not ok.all():
                 return False
         return True
 
     def bad_cells(self, V):
-        """Per block: (M,) bool, cells with a corner determinant <= 0 or (hexes) a coefficient <= 0."""
+        """Per block: (M,) bool, cells with a corner determinant <= 0 or (hexes) not :meth:`positive`."""
         out = []
-        for d, bb in zip(self.corner_dets(V), self.bernstein(V)):
+        for d, ok in zip(self.corner_dets(V), self.positive(V)):
             bad = d.min(axis=1) <= 0
-            if bb is not None:
-                bad |= bb.min(axis=1) <= 0
+            if ok is not None:
+                bad |= ~ok
             out.append(bad)
         return out
 
@@ -373,7 +411,7 @@ class Problem:
                 buf = b["cellbuf"] = (np.empty(M), np.empty(M), np.empty(M, dtype=np.bool_), np.empty((M, n, 3)))
             ecell, mcell, okc, gcell = buf
             if not _nb.barrier_cells(V, b["lconn"], b["Gq3"], float(b["factor"]), float(t), b["s"], BETA, b["hex"],
-                                     grad, ecell, mcell, okc, gcell):
+                                     grad, ecell, mcell, okc, gcell, b["split"]):
                 return np.inf, None
             fl2 = b.get("edge_floor2")
             if fl2 is not None and not _nb.edge_ratios_above(V, b["lconn"], fl2):
@@ -661,6 +699,7 @@ def improve(prob: Problem, *, target=None, max_rounds=40, max_iter=60, deadline=
     best = m
     stall = 0
     x = prob.x0()
+    prob.choose_split(prob.V)
     if project is not None:
         x = _project_feasible(prob, x, t, project)
     hist = [m]
@@ -669,6 +708,7 @@ def improve(prob: Problem, *, target=None, max_rounds=40, max_iter=60, deadline=
     for rnd in range(1, max_rounds + 1):
         if rnd > 1 and deadline is not None and time.perf_counter() > deadline:
             break  # (a restart below continues past the check at the end of a round)
+        prob.choose_split(prob.full(x))
         fun = lambda z: prob.barrier_energy(z, t)  # noqa: E731
         hit = []
         if early:
@@ -756,13 +796,13 @@ def recovers_in_time(trail, m_start, recover_seconds, pace_seconds=PACE_SECONDS)
 
 def _cell_ok(prob, V, t):
     """Per block: (M,) bool, cells whose samples all have SJ > t (t None: corner determinants > 0) and, for
-    hexes, all 27 Bernstein coefficients > 0."""
+    hexes, :meth:`Problem.positive`."""
     out = []
     sjs = prob.sj_samples(V) if t is not None else prob.corner_dets(V)
-    for v, bb, b in zip(sjs, prob.bernstein(V), prob.blocks):
+    for v, pos in zip(sjs, prob.positive(V)):
         ok = v.min(axis=1) > (t if t is not None else 0.0)
-        if bb is not None:
-            ok &= bb.min(axis=1) > 0
+        if pos is not None:
+            ok &= pos
         out.append(ok)
     return out
 

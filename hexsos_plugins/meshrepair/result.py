@@ -103,6 +103,8 @@ def summary_optimize(res):
         f"invalid after     {s['invalid_after']} (undecided {s['undecided_after']})",
     ] + ([other] if other else []) + [
         f"min det J         {s['min_det_before']:.6g} -> {s['min_det_after']:.6g} (exact, the kernel's)",
+    ] + ([f"det J min / max   {s['det_ratio_before']:.4f} -> {s['det_ratio_after']:.4f} (the least over the hexes "
+          "of min det J / max |det J|)"] if "det_ratio_after" in s else []) + [
         sj_line(s),
         f"displacement      max {s['max_displacement']:.6g}, mean {s['mean_displacement']:.6g} over "
         f"{s['moved_vertices']} moved vertices of {s['points']}"
