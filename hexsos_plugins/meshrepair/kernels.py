@@ -261,41 +261,45 @@ SPLIT_SCRATCH = 27 + 216 + 54 + 108
 
 
 @njit(cache=True, inline="always")
+def _half(f, src, dst, blocks, stride):
+    """One axis of :func:`_split`: each of ``blocks`` blocks of 27 coefficients at f[src:] (index 9 a + 3 b + c, the
+    axis the one of ``stride`` 9, 3 or 1) into its two halves along that axis, block 2 q + side at f[dst:]."""
+    for q in range(blocks):
+        for side in range(2):
+            for x in range(27):
+                k = (x // stride) % 3
+                base = src + 27 * q + x - k * stride
+                acc = 0.0
+                for k2 in range(3):
+                    w = _HALF[side, k, k2]
+                    if w != 0.0:
+                        acc += w * f[base + k2 * stride]
+                f[dst + 27 * (2 * q + side) + x] = acc
+
+
+@njit(cache=True, inline="always")
+def _half_T(f, src, dst, blocks, stride):
+    """The transpose of :func:`_half` (f[src:] its output, f[dst:] its input, added to)."""
+    for q in range(blocks):
+        for side in range(2):
+            for x in range(27):
+                k = (x // stride) % 3
+                base = dst + 27 * q + x - k * stride
+                y = f[src + 27 * (2 * q + side) + x]
+                for k2 in range(3):
+                    w = _HALF[side, k, k2]
+                    if w != 0.0:
+                        f[base + k2 * stride] += w * y
+
+
+@njit(cache=True, inline="always")
 def _split(f):
     """One subdivision of the hex's 27 coefficients f[0:27] (index 9 a + 3 b + c) into the 216 of its 8 half-size
     cubes, f[27 + 27 q + 9 a + 3 b + c] for the cube q = 4 i + 2 j + k (the half i along u, j along v, k along w):
     convex combinations of the 27, so positive wherever they all are, and closer to det J. f[243:405] is scratch."""
-    for i in range(2):  # along u
-        for a in range(3):
-            for r in range(9):
-                acc = 0.0
-                for a2 in range(3):
-                    w = _HALF[i, a, a2]
-                    if w != 0.0:
-                        acc += w * f[9 * a2 + r]
-                f[243 + 27 * i + 9 * a + r] = acc
-    for i in range(2):  # along v
-        for j in range(2):
-            for a in range(3):
-                for bb in range(3):
-                    for cc in range(3):
-                        acc = 0.0
-                        for b2 in range(3):
-                            w = _HALF[j, bb, b2]
-                            if w != 0.0:
-                                acc += w * f[243 + 27 * i + 9 * a + 3 * b2 + cc]
-                        f[297 + 27 * (2 * i + j) + 9 * a + 3 * bb + cc] = acc
-    for ij in range(4):  # along w
-        for k in range(2):
-            for a in range(3):
-                for bb in range(3):
-                    for cc in range(3):
-                        acc = 0.0
-                        for c2 in range(3):
-                            w = _HALF[k, cc, c2]
-                            if w != 0.0:
-                                acc += w * f[297 + 27 * ij + 9 * a + 3 * bb + c2]
-                        f[27 + 27 * (2 * ij + k) + 9 * a + 3 * bb + cc] = acc
+    _half(f, 0, 243, 1, 9)  # along u: 2 blocks at 243
+    _half(f, 243, 297, 2, 3)  # along v: 4 at 297
+    _half(f, 297, 27, 4, 1)  # along w: 8 at 27
 
 
 @njit(cache=True, inline="always")
@@ -304,36 +308,11 @@ def _split_T(f):
     216 coefficients -> with respect to the 27); f[243:405] is scratch."""
     for x in range(243, 405):
         f[x] = 0.0
-    for ij in range(4):
-        for k in range(2):
-            for a in range(3):
-                for bb in range(3):
-                    for cc in range(3):
-                        y = f[27 + 27 * (2 * ij + k) + 9 * a + 3 * bb + cc]
-                        for c2 in range(3):
-                            w = _HALF[k, cc, c2]
-                            if w != 0.0:
-                                f[297 + 27 * ij + 9 * a + 3 * bb + c2] += w * y
-    for i in range(2):
-        for j in range(2):
-            for a in range(3):
-                for bb in range(3):
-                    for cc in range(3):
-                        y = f[297 + 27 * (2 * i + j) + 9 * a + 3 * bb + cc]
-                        for b2 in range(3):
-                            w = _HALF[j, bb, b2]
-                            if w != 0.0:
-                                f[243 + 27 * i + 9 * a + 3 * b2 + cc] += w * y
     for x in range(27):
         f[x] = 0.0
-    for i in range(2):
-        for a in range(3):
-            for r in range(9):
-                y = f[243 + 27 * i + 9 * a + r]
-                for a2 in range(3):
-                    w = _HALF[i, a, a2]
-                    if w != 0.0:
-                        f[9 * a2 + r] += w * y
+    _half_T(f, 27, 297, 4, 1)
+    _half_T(f, 297, 243, 2, 3)
+    _half_T(f, 243, 0, 1, 9)
 
 
 @njit(cache=True, inline="always")
