@@ -1,4 +1,6 @@
+import atexit
 import os
+import shutil
 import sys
 import tempfile
 
@@ -9,7 +11,9 @@ import pytest  # noqa: E402
 
 # hexsos records the environments it runs in (for the ParaView plugin loaded by hand) under XDG_CONFIG_HOME:
 # the suite records into a directory of its own, never into the user's home (subprocesses inherit it)
+# (removed when the process ends: each pytest process, xdist's workers too, made one and left it behind)
 os.environ["XDG_CONFIG_HOME"] = tempfile.mkdtemp(prefix="hexsos-tests-config-")
+atexit.register(shutil.rmtree, os.environ["XDG_CONFIG_HOME"], True)
 
 SHARED = os.path.normpath(os.path.join(os.path.dirname(__file__), "..", "..", "shared", "data"))
 BUNNY = os.path.join(SHARED, "bunny.vtk")
