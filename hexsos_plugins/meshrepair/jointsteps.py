@@ -31,8 +31,8 @@ from ..cells.quality import SAMPLES, hex_edge_ratio
 from .localopt import BAND_BELOW, RATIO_FLOOR, band_limits, vertex_freedoms
 from .optimize import SPLIT_BELOW, bernstein_matrix, bernstein_split_matrix, cof3, hex_bernstein_samples
 
-__all__ = ["joint_steps", "sample_gradients", "bernstein_gradients", "held_coefficients", "binding_rows", "next_delta", "SPAN", "MAX_HEXES",
-           "PLATEAU", "PLATEAU_HEXES", "RATIO_SLACK", "HALF_KEEPS", "KEEP"]
+__all__ = ["joint_steps", "sample_gradients", "bernstein_gradients", "held_coefficients", "binding_rows", "next_delta",
+           "SPAN", "MAX_HEXES", "PLATEAU", "PLATEAU_HEXES", "RATIO_SLACK", "HALF_KEEPS", "KEEP"]
 
 #: The hexes whose vertices move: within this of the minimum, the :data:`MAX_HEXES` lowest at most (measured on
 #: the published meshes after the vertex steps, 10 s each, with a box for the band: 50 reached as high as 100 and

@@ -262,8 +262,8 @@ SPLIT_SCRATCH = 27 + 216 + 54 + 108
 
 @njit(cache=True, inline="always")
 def _half(f, src, dst, blocks, stride):
-    """One axis of :func:`_split`: each of ``blocks`` blocks of 27 coefficients at f[src:] (index 9 a + 3 b + c, the
-    axis the one of ``stride`` 9, 3 or 1) into its two halves along that axis, block 2 q + side at f[dst:]."""
+    """One axis of :func:`_split`: each of ``blocks`` blocks of 27 coefficients at f[src:] (index 9 a + 3 b + c; the
+    axis is u, v or w for ``stride`` 9, 3 or 1) into its two halves along that axis, block 2 q + side at f[dst:]."""
     for q in range(blocks):
         for side in range(2):
             for x in range(27):
@@ -488,8 +488,8 @@ def barrier_cells(V, conn, G, factor, t, s, beta, hexes, want_grad, ecell, mcell
     """Stage 2's terms per cell: ecell (M,) energy, mcell (M,) min SJ, okc (M,) feasible,
     gcell (M, n, 3) the cell's vertex gradient (when ``want_grad``); ``split`` (M,) bool: the hexes whose barrier is
     on the 216 coefficients of their split (:func:`_split`, weight ``beta`` / 8) instead of their 27 (a coefficient
-    near 0 is often the bound's slack, not det J's: kitten_with_bifur_3's rounds stopped at hexes whose least
-    coefficient was 6e-6 of their largest, det J's least 0.1 of it). Returns whether every cell is feasible; when
+    near 0 is often the bound's slack, not det J's: kitten_with_bifur_3's rounds stopped beside a hex whose least
+    coefficient was 6e-6 of its largest). Returns whether every cell is feasible; when
     not, the rows are incomplete (the work stops at the first infeasible cell of a part). On the kernel's threads
     in parts for :data:`BARRIER_PARTS_MIN_CELLS` cells and more."""
     from ..kernel.pool import run_all, threads

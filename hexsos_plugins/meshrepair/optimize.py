@@ -51,9 +51,9 @@ The test of validity beyond the corners, in every stage (:meth:`Problem.positive
 :mod:`hexsos_plugins.meshrepair.localopt` and :mod:`hexsos_plugins.meshrepair.jointsteps`): a hex's 27 Bernstein
 coefficients of det J all positive, or else the 216 of one subdivision of them (det J's coefficients on its 8
 half-size cubes, convex combinations of the 27, closer to det J). The 27 alone held the optimizer at hexes whose
-least coefficient was their slack, not det J's: kitten_with_bifur_3's rounds stopped at a hex with a coefficient
-6e-6 of its largest, det J's least there 0.1 of it, and cat_2's steps at its folded hex. The certificate is still
-the kernel's.
+least coefficient was their slack, not det J's: kitten_with_bifur_3's rounds stopped beside a hex whose least
+coefficient was 6e-6 of its largest, its joint steps beside hexes at 6e-10 whose det J's least was 0.1 of their
+largest. The certificate is still the kernel's.
 """
 
 from __future__ import annotations
