@@ -92,8 +92,7 @@ def test_the_split_is_det_js_coefficients_on_the_eight_half_cubes():
     """``kernels.hex_bernstein_split``: block q = 4 i + 2 j + k of the 216 is det J's 27 Bernstein coefficients on
     the half-size cube (i, j, k) of the reference cube, found independently: the trilinear map restricted to that
     cube is the hex of its 8 corners' images, whose det J (in its own coordinates) is the parent's over 8. The same
-    numbers as
-    ``optimize.bernstein_split_matrix`` applied to the 27; a block in the wrong place fails."""
+    numbers as ``optimize.bernstein_split_matrix`` applied to the 27; a block in the wrong place fails."""
     from hexsos_plugins.examples import random_hexes, unit_cube
     from hexsos_plugins.meshrepair import kernels as nb
 
@@ -726,7 +725,8 @@ def test_repair_reports_edge_ratios():
 def test_repair_reports_det_js_least_over_largest():
     """``det_ratio_before`` / ``_after``: the least over the hexes of min det J / max |det J| (the kernel's minimum
     over its scale), before and after, in the report and its text; below 0 for an input with an inverted hex. A
-    cube twisted by 110 degrees (det J's least at its top face's centre, 0.329 of its largest) reports that."""
+    cube twisted by 110 degrees has det J = det((1 - w) R + w I): cos^2(55 degrees) at mid-height, 1 at its faces,
+    and reports that."""
     from hexsos_plugins.examples import twisted_hex
 
     P, H = structured_grid(3)
@@ -738,7 +738,7 @@ def test_repair_reports_det_js_least_over_largest():
     assert r.stats["det_ratio_after"] == float(np.min(c1.min_det / c1.scale)) > 0
     assert f"det J min / max   {r.stats['det_ratio_before']:.4f} -> {r.stats['det_ratio_after']:.4f}" in r.summary()
     c = hs.check(twisted_hex(np.radians(110.0)), np.arange(8)[None])
-    assert c.relative_min_det[0] == pytest.approx(0.329, abs=1e-3)
+    assert c.relative_min_det[0] == pytest.approx(np.cos(np.radians(55.0)) ** 2, rel=1e-12)
 
 
 def test_published_rockarm_default_repair_beats_the_surface_cap():
