@@ -336,15 +336,11 @@ def _positive(f):
 @njit(cache=True)
 def hex_positive(V, conn):
     """Per hex (M,) bool: :func:`_positive` (the repair's test of validity beyond the corners)."""
-    M = conn.shape[0]
-    out = np.empty(M, dtype=np.bool_)
-    XU = np.empty((3, 3, 3))
-    XV = np.empty((3, 3, 3))
-    XW = np.empty((3, 3, 3))
+    B = hex_bernstein(V, conn)
+    out = np.empty(B.shape[0], dtype=np.bool_)
     f = np.empty(SPLIT_SCRATCH)
-    for m in range(M):
-        _hex_grid(V, conn, m, XU, XV, XW, f)
-        _to_bernstein(f, True)
+    for m in range(B.shape[0]):
+        f[:27] = B[m]
         out[m] = _positive(f)
     return out
 
@@ -352,15 +348,11 @@ def hex_positive(V, conn):
 @njit(cache=True)
 def hex_bernstein_split(V, conn):
     """The 216 Bernstein coefficients of det J of every hex on its 8 half-size cubes (:func:`_split`): (M, 216)."""
-    M = conn.shape[0]
-    out = np.empty((M, 216))
-    XU = np.empty((3, 3, 3))
-    XV = np.empty((3, 3, 3))
-    XW = np.empty((3, 3, 3))
+    B = hex_bernstein(V, conn)
+    out = np.empty((B.shape[0], 216))
     f = np.empty(SPLIT_SCRATCH)
-    for m in range(M):
-        _hex_grid(V, conn, m, XU, XV, XW, f)
-        _to_bernstein(f, True)
+    for m in range(B.shape[0]):
+        f[:27] = B[m]
         _split(f)
         out[m] = f[27:243]
     return out

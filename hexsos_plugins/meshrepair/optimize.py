@@ -699,8 +699,8 @@ def improve(prob: Problem, *, target=None, max_rounds=40, max_iter=60, deadline=
     best = m
     stall = 0
     x = prob.x0()
-    prob.choose_split(prob.V)
     if project is not None:
+        prob.choose_split(prob.V)  # the projection's check of the barrier (each round chooses at its own start)
         x = _project_feasible(prob, x, t, project)
     hist = [m]
     trail = []  # (seconds since the start, minimum) after each round
