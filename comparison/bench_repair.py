@@ -241,13 +241,17 @@ def _start_rows(starts, column, names=None, jobs=0, extra=()):
                   flush=True)
 
 
+#: The column of the boundary quads turned over (``stats["turned_quads_after"]``: the surface folded there)
+TURNED = ("boundary quads turned over", lambda r, diag: f"{r.stats.get('turned_quads_after', 0):,}")
+
+
 def perturbed(names=None, amps=(1.5, 3.0), jobs=0):
     """The default repair on the published meshes perturbed as HexOpt's stress tests: every interior vertex moved
     by up to ``amp`` edge lengths (:func:`comparison.stress.stress`, seed 0 for 1.5, 1 otherwise)."""
     from comparison.stress import stress
 
     _start_rows(lambda P, H: [(f"{amp:g}", stress(P, H, frac=1.0, amp=amp, seed=0 if amp == 1.5 else 1))
-                              for amp in amps], "moved by (edge lengths)", names, jobs)
+                              for amp in amps], "moved by (edge lengths)", names, jobs, (TURNED,))
 
 
 def scattered(names=None, wheres=("centroid", "box"), jobs=0):
@@ -259,7 +263,7 @@ def scattered(names=None, wheres=("centroid", "box"), jobs=0):
     labels = {"centroid": "at the centroid", "box": "anywhere in the box"}
     extra = (("harmonic start", lambda r, diag: "yes" if r.stats["harmonic_start"] else "no"),
              ("farthest boundary vertex (of diag)",
-              lambda r, diag: f"{100 * r.stats.get('boundary_max_distance', 0.0) / diag:.2f}%"))
+              lambda r, diag: f"{100 * r.stats.get('boundary_max_distance', 0.0) / diag:.2f}%"), TURNED)
     _start_rows(lambda P, H: [(labels[w], scatter_interior(P, H, where=w, seed=0)) for w in wheres],
                 "interior vertices", names, jobs, extra)
 

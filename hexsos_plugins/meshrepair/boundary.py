@@ -27,7 +27,8 @@ import numpy as np
 from ..cells.elements import ELEMENTS
 from ..errors import DependencyError
 
-__all__ = ["boundary_faces", "interior_vertices", "BoundaryModel", "NearestPoints", "boundary_model", "Slide"]
+__all__ = ["boundary_faces", "interior_vertices", "BoundaryModel", "NearestPoints", "boundary_model", "Slide",
+           "quad_incidence", "quad_corners"]
 
 
 def _faces_of(cells):
@@ -64,6 +65,26 @@ def interior_vertices(cells, n_points):
     for F in boundary_faces(cells):
         inner[F.ravel()] = False
     return inner
+
+
+def quad_incidence(quads, normal, n_points):
+    """(qptr (n_points + 1,), qinc, quads, normal): the quads at each vertex (CSR), C-contiguous for the vertex
+    steps."""
+    quads = np.ascontiguousarray(quads, dtype=np.int64).reshape(-1, 4)
+    vert = quads.ravel()
+    qinc = np.repeat(np.arange(quads.shape[0], dtype=np.int64), 4)[np.argsort(vert, kind="stable")]
+    qptr = np.zeros(int(n_points) + 1, dtype=np.int64)
+    np.cumsum(np.bincount(vert, minlength=int(n_points)), out=qptr[1:])
+    return qptr, qinc, quads, np.ascontiguousarray(normal, dtype=np.float64).reshape(-1, 3)
+
+
+def quad_corners(V, quads, normal):
+    """(Q, 4): ``n . (a x b)`` at each corner of the quads (a, b its edges to the next and the previous corner, n
+    the quad's unit normal (Q, 3)); a corner <= 0 is turned over or degenerate against n."""
+    X = V[quads]
+    a = np.roll(X, -1, axis=1) - X
+    b = np.roll(X, 1, axis=1) - X
+    return (np.asarray(normal)[:, None, :] * np.cross(a, b)).sum(axis=2)
 
 
 def _triangles(tris, quads):
@@ -129,6 +150,9 @@ class BoundaryModel:
     feat_E: np.ndarray  # (E, 2) feature segments
     feature_edges: int
     tolerance: np.ndarray | None = None  # (B,) the band: how far each may sit off its surface / curve / corner
+    quads: np.ndarray | None = None  # (Q, 4) the boundary quads, each ordered as seen from outside ...
+    quad_normal: np.ndarray | None = None  # (Q, 3) ... its unit outward normal in the input (:func:`boundary_model`)
+    quad_s2: np.ndarray | None = None  # (Q,) the mean squared boundary edge length at its vertices
     trees: dict = field(default_factory=dict, repr=False, compare=False)  # kind -> NearestPoints, built once
 
     def nearest(self, P, kind):
@@ -141,6 +165,26 @@ class BoundaryModel:
     @property
     def corners(self) -> np.ndarray:
         return self.vertices[self.kind == 2]
+
+    def turned_quads(self, V) -> np.ndarray:
+        """(Q,) bool: the boundary quads whose vector area at V points against their input normal (turned over: the
+        surface is folded there, with the cells on both sides valid or not)."""
+        if self.quads is None or self.quads.shape[0] == 0:
+            return np.zeros(0, dtype=bool)
+        q = self.quads
+        area = np.cross(V[q[:, 2]] - V[q[:, 0]], V[q[:, 3]] - V[q[:, 1]])
+        return (area * self.quad_normal).sum(axis=1) <= 0
+
+    def surface(self):
+        """The boundary quads, their input normals and squared sizes: an optimizer's ``surface`` (stage 1's term and
+        stage 2's barrier keep them from turning over, :class:`hexsos_plugins.meshrepair.optimize.Problem`)."""
+        return self.quads, self.quad_normal, self.quad_s2
+
+    def quad_incidence(self, n_points):
+        """The boundary quads at each vertex: (qptr (n_points + 1,), qinc, quads (Q, 4), normals (Q, 3)), CSR."""
+        quads = np.zeros((0, 4), dtype=np.int64) if self.quads is None else self.quads
+        normal = np.zeros((0, 3)) if self.quad_normal is None else self.quad_normal
+        return quad_incidence(quads, normal, n_points)
 
     def slide(self, V, movable) -> Slide:
         """The penalty terms of the boundary vertices that may move (``movable`` (N,) bool), not corners."""
@@ -326,7 +370,21 @@ def boundary_model(points, cells, *, feature_angle: float = 45.0, suspect=None, 
     ssum = np.bincount(uniq.ravel(), weights=np.repeat(el, 2), minlength=N)
     scnt = np.bincount(uniq.ravel(), minlength=N)
     size = ssum[verts] / np.maximum(scnt[verts], 1)
+    # the boundary quads' input normals: a quad's own (its vector area) unless it has no area or is folded itself
+    # (a corner's normal against it); then the sum of its vertices' normals. Not whether its hex is inverted: a
+    # stress test inverts every hex and leaves the surface as it was, and on a thin part (Dolphin_2's fins) the
+    # vertex normals of both sides cancel
+    qn = fn[tris.shape[0]:]
+    qbad = area[tris.shape[0]:] <= 1e-12 * (float(np.median(area)) if area.size else 0.0)
+    for c in range(4):
+        x0, x1, x3 = P[quads[:, c]], P[quads[:, (c + 1) % 4]], P[quads[:, (c + 3) % 4]]
+        qbad |= (np.cross(x1 - x0, x3 - x0) * qn).sum(axis=1) <= 0
+    qn = np.where(qbad[:, None], vn[quads].sum(axis=1), qn)
+    qn = qn / np.maximum(np.linalg.norm(qn, axis=1, keepdims=True), 1e-300)
+    size2 = np.zeros(N)
+    size2[verts] = size ** 2
     return BoundaryModel(vertices=verts, kind=kind, normal=normal, tangent=tangent, size=size,
                          surf_V=np.ascontiguousarray(P), surf_F=np.ascontiguousarray(tri),
                          feat_E=np.ascontiguousarray(feat), feature_edges=int(feat.shape[0]),
-                         tolerance=float(tolerance) * size)
+                         tolerance=float(tolerance) * size, quads=np.ascontiguousarray(quads, dtype=np.int64),
+                         quad_normal=qn, quad_s2=size2[quads].mean(axis=1) if quads.shape[0] else np.zeros(0))

@@ -13,6 +13,13 @@ Stage 1, untangling (Garanzha, Garanzha, Kaporin et al. 2021, *Foldover-free map
     Bernstein coefficients are not all positive (a fold inside a corner-valid hex, or a corner still inverted)
     add the regularized barrier ``theta_b (b^2 + 1) / chi(b, eps)`` on their 27 coefficients ``b`` (in units of
     s^3). Stops as soon as every corner determinant is positive and every hex passes the test of validity below.
+    With a sliding boundary, each corner of a boundary quad adds ``SURFACE_WEIGHT (|a|^2 + |b|^2) / (2 s2) /
+    chi(D, eps)``, ``D = n . (a x b) / s2`` (a, b the corner's edges, n the quad's input normal, s2 its squared
+    size; :meth:`Problem.surface_terms`): the same regularized shape term in the plane normal to n, so the surface
+    unfolds where it is folded and does not fold where it is not. Without it the untangling slid boundary vertices
+    freely along their tangent planes: on kitten_with_bifur_3 moved by 3 edge lengths, 93 boundary quads turned over
+    (their vector area against their input normal) in its first second, the hexes ended valid with 97-169 quads
+    turned (the surface folded through itself), and one start kept 15 hexes inverted after its 60 s beside them.
 
     Sample points, measured (``python -m comparison.bench_repair --samples``): corners for every cell plus the
     27 coefficients only for the hexes whose coefficients are not all positive. Corners alone cannot see a fold
@@ -32,7 +39,9 @@ Stage 2, quality
     construction. After each
     solve t moves 90% of the way to the new minimum (measured: 11 rounds to the bunny's plateau, 18 with half); it
     stops at the target, when the minimum stops rising, or at the budget. (beta = 0.1 held the bunny at min SJ
-    0.15, 0.01 and 0.001 reached 0.51.)
+    0.15, 0.01 and 0.001 reached 0.51.) The boundary quads whose corners are all positive against their input normal
+    at a round's start (:meth:`Problem.hold_surface`) add ``-SURFACE_BETA sum log D`` over their corners: the rounds
+    turn none of them over (Dolphin_2 moved by 3 edge lengths: 17 quads turned in its rounds before).
 
 Boundary, ``boundary="slide"``: every boundary vertex pays ``w |Q (x - r)|^2 / s^2`` (w = 100, Q the projector
 onto its input normal, or onto the plane normal to its feature edge, r its reference on the input surface), so it
@@ -65,12 +74,15 @@ import numpy as np
 
 from ..cells.elements import ELEMENTS
 from ..cells.quality import IDEAL, SAMPLES, hex_edge_ratio
+from .boundary import quad_corners
 
 __all__ = ["Problem", "untangle", "improve", "recovers_in_time", "hex_bernstein_samples", "bernstein_matrix",
            "bernstein_split_matrix", "det3", "cof3", "bernstein_coefficients", "bernstein_vertex_gradient", "SPLIT_BELOW"]
 
 THETA = 1.0 / 128.0  # weight of the volume term in stage 1 (Garanzha et al.)
 BOUNDARY_WEIGHT = 100.0  # w of stage 1's boundary penalty
+SURFACE_WEIGHT = 10.0  # of stage 1's term on the boundary quads (:meth:`Problem.surface_terms`)
+SURFACE_BETA = 0.01  # of stage 2's log-barrier on the corners of the boundary quads it holds (:meth:`Problem.hold_surface`)
 THETA_B = 3.0  # weight of the Bernstein barrier in stage 1 (bunny, sliding, measured: 1 -> 12 outer steps for one fold, min SJ 0.02 after stage 2; 30 -> 2 steps, 0.01-0.06; 3 -> 0.30)
 #: Stage 1's corner term on a block of this many cells and more runs in UNTANGLE_PARTS parts on the kernel's threads
 #: (``repair(..., jobs=)``; ``hexsos repair`` uses every core): 34,880 hexes, 33 ms in one thread, 19 ms in 4 parts
@@ -233,9 +245,11 @@ class Problem:
     sizes : list of (M,) the target edge length s of every cell (the input's mean edge length)
     free : (N,) bool, the vertices that may move
     slide : optional ``boundary.Slide`` (boundary quadric penalty and projection)
+    surface : optional (quads (Q, 4), unit input normals (Q, 3), squared sizes (Q,)): the boundary quads that
+        stage 1 keeps from turning over (:meth:`surface_terms`); those with no free vertex are left out
     """
 
-    def __init__(self, V, blocks, sizes, free, slide=None):
+    def __init__(self, V, blocks, sizes, free, slide=None, surface=None):
         self.V = np.array(V, dtype=np.float64)
         self.N = self.V.shape[0]
         self.free_mask = np.asarray(free, dtype=bool)
@@ -275,6 +289,14 @@ class Problem:
         if self.local_slide is not None and (self.local_slide < 0).any():
             raise ValueError("slide: its vertices must be free vertices of the problem; "
                              f"{int((self.local_slide < 0).sum())} are not")
+        self.surface = None
+        if surface is not None:
+            quads, normal, s2 = (np.asarray(a) for a in surface)
+            rows = np.flatnonzero(self.free_mask[quads].any(axis=1)) if quads.size else np.zeros(0, dtype=np.int64)
+            rows = rows[(local[quads[rows]] >= 0).all(axis=1)]
+            if rows.size:
+                self.surface = {"quads": np.ascontiguousarray(local[quads[rows]]), "normal": normal[rows],
+                                "s2": np.maximum(s2[rows], 1e-300)}
         self.evaluations = 0
         self.ratio_floor = 0.0  # stage 2's edge floor (:meth:`hold_edge_ratios`)
 
@@ -392,10 +414,76 @@ class Problem:
                                               g, True)
                 total += e
                 dmin = min(dmin, d)
+        if self.surface is not None:
+            e, d = self.surface_terms(V, eps, g)
+            total += e
+            dmin = min(dmin, d)
         total += self._boundary(V, g, True, self.local_slide)
         self.evaluations += 1
         self._last_dmin = dmin
         return total, g[self.local_free].ravel()
+
+    def _quad_geometry(self, V, rows=None):
+        """The boundary quads' (rows of :attr:`surface`) corners at V (the rows of :attr:`used`): (quads, next,
+        previous (k, 4) vertices, edges a to the next and b to the previous corner (k, 4, 3), normals (k, 1, 3),
+        squared sizes (k, 1), D = n . (a x b) / s2 (k, 4))."""
+        sf = self.surface
+        q, n, s2 = sf["quads"], sf["normal"], sf["s2"]
+        if rows is not None:
+            q, n, s2 = q[rows], n[rows], s2[rows]
+        n, s2 = n[:, None, :], s2[:, None]
+        nxt, prv = np.roll(q, -1, axis=1), np.roll(q, 1, axis=1)
+        X = V[q]
+        a, b = V[nxt] - X, V[prv] - X
+        return q, nxt, prv, a, b, n, s2, (n * np.cross(a, b)).sum(axis=2) / s2
+
+    def _scatter_quads(self, g, q, nxt, prv, ga, gb):
+        """Adds to g (the rows of :attr:`used`) the gradient of a sum over the quads' corners whose derivatives
+        with respect to the corners' edges a (to the next corner) and b (to the previous) are ``ga``, ``gb``
+        (k, 4, 3)."""
+        rows = self.used.size
+        for idx, gv in ((nxt, ga), (prv, gb), (q, -(ga + gb))):
+            flat = idx.ravel()
+            for c in range(3):
+                g[:, c] += np.bincount(flat, weights=gv[:, :, c].ravel(), minlength=rows)
+
+    def surface_terms(self, V, eps, g):
+        """Stage 1's term on the boundary quads (:attr:`surface`; V and g: the rows of :attr:`used`), its gradient
+        added to g: (energy, least D). At each corner of a quad, with a and b its edges to the next and previous
+        corner, n the quad's input normal and s2 its squared size, ``SURFACE_WEIGHT (|a|^2 + |b|^2) / (2 s2) /
+        chi(D, eps)`` with ``D = n . (a x b) / s2`` (1 at a square's corner), Garanzha's regularized shape term in
+        the plane normal to n: the surface unfolds and does not fold where it is not."""
+        q, nxt, prv, a, b, n, s2, D = self._quad_geometry(V)
+        S = ((a * a).sum(axis=2) + (b * b).sum(axis=2)) / (2.0 * s2)
+        chi, dchi = _chi(D, float(eps))
+        e_s = (SURFACE_WEIGHT / chi)[:, :, None]
+        e_d = (-SURFACE_WEIGHT * S * dchi / (chi * chi))[:, :, None]  # d/dD; dD/da = b x n / s2, dD/db = n x a / s2
+        s2 = s2[:, :, None]
+        self._scatter_quads(g, q, nxt, prv, (e_s * a + e_d * np.cross(b, n)) / s2, (e_s * b + e_d * np.cross(n, a)) / s2)
+        return float((S * e_s[:, :, 0]).sum()), float(D.min())
+
+    def hold_surface(self, V):
+        """Stage 2's barrier from here on keeps the boundary quads whose corners are all positive at V (``V``: the
+        mesh's coordinates) so (:data:`SURFACE_BETA`): its rounds turn none of them over."""
+        if self.surface is None:
+            return
+        least = quad_corners(V[self.used], self.surface["quads"], self.surface["normal"]).min(axis=1)
+        self.surface["held"] = np.flatnonzero(least > 0)
+
+    def _surface_barrier(self, V, g):
+        """Stage 2's term on the held boundary quads (:meth:`hold_surface`): ``-SURFACE_BETA sum log D`` over their
+        corners, its gradient added to g (None: no gradient); inf where a corner is <= 0."""
+        rows = self.surface.get("held") if self.surface is not None else None
+        if rows is None or rows.size == 0:
+            return 0.0
+        q, nxt, prv, a, b, n, s2, D = self._quad_geometry(V, rows)
+        if not (D > 0).all():
+            return np.inf
+        if g is not None:
+            e_d = (-SURFACE_BETA / D)[:, :, None]
+            s2 = s2[:, :, None]
+            self._scatter_quads(g, q, nxt, prv, e_d * np.cross(b, n) / s2, e_d * np.cross(n, a) / s2)
+        return float(-SURFACE_BETA * np.log(D).sum())
 
     # --- stage 2: the log-barrier on the scaled Jacobian samples and the Bernstein coefficients
     def barrier_energy(self, x, t, *, grad=True):
@@ -421,6 +509,10 @@ class Problem:
             if grad:
                 _nb.scatter_cells(g, b["lconn"], gcell)
         self._last_min_sj = smin
+        held = self._surface_barrier(V, g if grad else None)
+        if not np.isfinite(held):
+            return np.inf, None
+        total += held
         total += self._edges(V, g)
         total += self._boundary(V, g, True, self.local_slide)
         return total, (g[self.local_free].ravel() if grad else None)
@@ -701,6 +793,7 @@ def improve(prob: Problem, *, target=None, max_rounds=40, max_iter=60, deadline=
     x = prob.x0()
     if project is not None:
         prob.choose_split(prob.V)  # the projection's check of the barrier (each round chooses at its own start)
+        prob.hold_surface(prob.V)
         x = _project_feasible(prob, x, t, project)
     hist = [m]
     trail = []  # (seconds since the start, minimum) after each round
@@ -709,6 +802,7 @@ def improve(prob: Problem, *, target=None, max_rounds=40, max_iter=60, deadline=
         if rnd > 1 and deadline is not None and time.perf_counter() > deadline:
             break  # (a restart below continues past the check at the end of a round)
         prob.choose_split(prob.full(x))
+        prob.hold_surface(prob.full(x))
         fun = lambda z: prob.barrier_energy(z, t)  # noqa: E731
         hit = []
         if early:
@@ -809,9 +903,10 @@ def _cell_ok(prob, V, t):
 
 def project_valid(prob, V, target, idx, t=None, tries=8, ratio_floor=0.0):
     """Move the vertices ``idx`` from V toward ``target`` (same shape as V), each as far as it can go without
-    making a cell of ``prob`` infeasible (see :func:`_cell_ok`) or, with ``ratio_floor`` > 0, taking a hex's
-    shortest / longest edge below the lesser of its own at V and ``ratio_floor``: vertices of cells that would fail
-    step back by halves, ``tries`` times, then stay. Returns the new coordinates."""
+    making a cell of ``prob`` infeasible (see :func:`_cell_ok`), turning one of its boundary quads over (with a
+    ``surface``: a quad's least corner positive stays so, one not positive does not fall) or, with ``ratio_floor``
+    > 0, taking a hex's shortest / longest edge below the lesser of its own at V and ``ratio_floor``: vertices of
+    cells that would fail step back by halves, ``tries`` times, then stay. Returns the new coordinates."""
     idx = np.asarray(idx, dtype=np.int64)
     if idx.size == 0:
         return V
@@ -821,6 +916,10 @@ def project_valid(prob, V, target, idx, t=None, tries=8, ratio_floor=0.0):
     base = _cell_ok(prob, V, t)
     floors = [np.minimum(hex_edge_ratio(V, b["conn"]), ratio_floor) if b["hex"] and ratio_floor > 0 else None
               for b in prob.blocks]
+    quads = None if prob.surface is None else prob.used[prob.surface["quads"]]
+    if quads is not None:
+        normal = prob.surface["normal"]
+        least0 = quad_corners(V, quads, normal).min(axis=1)
     W = V
     for k in range(tries + 1):
         a = np.where(sel, alpha, 0.0)
@@ -833,6 +932,9 @@ def project_valid(prob, V, target, idx, t=None, tries=8, ratio_floor=0.0):
             fail = b0 & ~o
             if fail.any():
                 back[b["conn"][fail].ravel()] = True
+        if quads is not None:  # nor turning a boundary quad over (the least corner positive stays so, or rises)
+            least = quad_corners(W, quads, normal).min(axis=1)
+            back[quads[(least <= 0) & (least0 > 0)].ravel()] = True
         back &= sel & (alpha > 0)
         if not back.any():
             return W

@@ -112,6 +112,8 @@ def summary_optimize(res):
         + (f", {s['pinned_vertices']} pinned" if s["pinned_vertices"] else "")
         + (f"; local: only the {s['local_region_vertices']} vertices within {s['rings']} rings of the "
            f"cells not proven valid could move" if s.get("local") else ""),
+    ] + ([f"surface           {s['turned_quads_before']} -> {s['turned_quads_after']} boundary quads turned over "
+          "(facing against their input normal: the surface folded there)"] if "turned_quads_after" in s else []) + [
         f"stages            untangle {st.get('untangle', 0):.2f} s ({s['untangle_iterations']} iterations), quality "
         f"{st.get('quality', 0):.2f} s ({s['quality_rounds']} rounds"
         + (f", the last {s['quality_rounds_undone']} undone: they ended below where they began"
