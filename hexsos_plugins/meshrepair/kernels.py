@@ -791,7 +791,8 @@ def _most_quads(qptr):
 @njit(cache=True, inline="always")
 def _quads_keep(V, qptr, qinc, quads, qn, v, before, record):
     """``record``: the least corner of each boundary quad at vertex v into ``before``, returns True. Otherwise
-    whether no quad at v whose least corner was positive has one <= 0 now, and none of the others fell."""
+    whether no quad at v whose least corner was positive has one <= 0 now (one that was not is left free: stage 1
+    unfolds those)."""
     for j in range(qptr[v], qptr[v + 1]):
         d = _quad_least(V, quads, qn, qinc[j])
         if record:
@@ -815,7 +816,7 @@ def sweep(V, conn, G, factor, order, ptr, inc, loc, proj, step0, tau, max_steps,
     lesser of its own and this (the scaled Jacobian does not see an edge's length: without it the steps collapsed
     edges to 1e-5 of their hex's longest). ``qptr``/``qinc``: the boundary quads ``quads`` (Q, 4) at each vertex
     (CSR), ``qn`` (Q, 3) their input normals: no accepted step turns a quad's corner over (:func:`_quads_keep`: a
-    quad's least corner positive stays positive, else does not fall). Returns the number of accepted steps."""
+    quad's least corner positive stays positive). Returns the number of accepted steps."""
     K = G.shape[0]
     valence = 0
     for v in range(ptr.shape[0] - 1):

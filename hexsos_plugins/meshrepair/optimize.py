@@ -18,7 +18,7 @@ Stage 1, untangling (Garanzha, Garanzha, Kaporin et al. 2021, *Foldover-free map
     size; :meth:`Problem.surface_terms`): the same regularized shape term in the plane normal to n, so the surface
     unfolds where it is folded and does not fold where it is not. Without it the untangling slid boundary vertices
     freely along their tangent planes: on kitten_with_bifur_3 moved by 3 edge lengths, 93 boundary quads turned over
-    (their vector area against their input normal) in its first second, the hexes ended valid with 97-169 quads
+    (their vector area against their input normal) in its first second, the hexes ended valid with 133-169 quads
     turned (the surface folded through itself), and one start kept 15 hexes inverted after its 60 s beside them.
 
     Sample points, measured (``python -m comparison.bench_repair --samples``): corners for every cell plus the
@@ -82,7 +82,7 @@ __all__ = ["Problem", "untangle", "improve", "recovers_in_time", "hex_bernstein_
 THETA = 1.0 / 128.0  # weight of the volume term in stage 1 (Garanzha et al.)
 BOUNDARY_WEIGHT = 100.0  # w of stage 1's boundary penalty
 SURFACE_WEIGHT = 10.0  # of stage 1's term on the boundary quads (:meth:`Problem.surface_terms`)
-SURFACE_BETA = 0.01  # of stage 2's log-barrier on the corners of the boundary quads it holds (:meth:`Problem.hold_surface`)
+SURFACE_BETA = 0.01  # of stage 2's log-barrier on the corners of its held boundary quads (:meth:`Problem.hold_surface`)
 THETA_B = 3.0  # weight of the Bernstein barrier in stage 1 (bunny, sliding, measured: 1 -> 12 outer steps for one fold, min SJ 0.02 after stage 2; 30 -> 2 steps, 0.01-0.06; 3 -> 0.30)
 #: Stage 1's corner term on a block of this many cells and more runs in UNTANGLE_PARTS parts on the kernel's threads
 #: (``repair(..., jobs=)``; ``hexsos repair`` uses every core): 34,880 hexes, 33 ms in one thread, 19 ms in 4 parts
@@ -246,7 +246,8 @@ class Problem:
     free : (N,) bool, the vertices that may move
     slide : optional ``boundary.Slide`` (boundary quadric penalty and projection)
     surface : optional (quads (Q, 4), unit input normals (Q, 3), squared sizes (Q,)): the boundary quads that
-        stage 1 keeps from turning over (:meth:`surface_terms`); those with no free vertex are left out
+        stage 1 (:meth:`surface_terms`), stage 2 (:meth:`hold_surface`) and :func:`project_valid` keep from turning
+        over; those with no free vertex are left out
     """
 
     def __init__(self, V, blocks, sizes, free, slide=None, surface=None):
@@ -459,7 +460,8 @@ class Problem:
         e_s = (SURFACE_WEIGHT / chi)[:, :, None]
         e_d = (-SURFACE_WEIGHT * S * dchi / (chi * chi))[:, :, None]  # d/dD; dD/da = b x n / s2, dD/db = n x a / s2
         s2 = s2[:, :, None]
-        self._scatter_quads(g, q, nxt, prv, (e_s * a + e_d * np.cross(b, n)) / s2, (e_s * b + e_d * np.cross(n, a)) / s2)
+        self._scatter_quads(g, q, nxt, prv, (e_s * a + e_d * np.cross(b, n)) / s2,
+                            (e_s * b + e_d * np.cross(n, a)) / s2)
         return float((S * e_s[:, :, 0]).sum()), float(D.min())
 
     def hold_surface(self, V):
@@ -904,7 +906,7 @@ def _cell_ok(prob, V, t):
 def project_valid(prob, V, target, idx, t=None, tries=8, ratio_floor=0.0):
     """Move the vertices ``idx`` from V toward ``target`` (same shape as V), each as far as it can go without
     making a cell of ``prob`` infeasible (see :func:`_cell_ok`), turning one of its boundary quads over (with a
-    ``surface``: a quad's least corner positive stays so, one not positive does not fall) or, with ``ratio_floor``
+    ``surface``: a quad whose corners are all positive keeps them so) or, with ``ratio_floor``
     > 0, taking a hex's shortest / longest edge below the lesser of its own at V and ``ratio_floor``: vertices of
     cells that would fail step back by halves, ``tries`` times, then stay. Returns the new coordinates."""
     idx = np.asarray(idx, dtype=np.int64)
@@ -932,7 +934,7 @@ def project_valid(prob, V, target, idx, t=None, tries=8, ratio_floor=0.0):
             fail = b0 & ~o
             if fail.any():
                 back[b["conn"][fail].ravel()] = True
-        if quads is not None:  # nor turning a boundary quad over (the least corner positive stays so, or rises)
+        if quads is not None:  # nor turning a boundary quad over (its least corner positive stays so)
             least = quad_corners(W, quads, normal).min(axis=1)
             back[quads[(least <= 0) & (least0 > 0)].ravel()] = True
         back &= sel & (alpha > 0)
