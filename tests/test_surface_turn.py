@@ -1,5 +1,5 @@
-"""The boundary surface does not fold: stage 1's term on the boundary quads, the vertex steps' guard and the report's
-count of boundary quads turned over."""
+"""The boundary surface does not fold: stage 1's term on the boundary quads, stage 2's hold on them, the projections'
+and the report's count of boundary quads turned over."""
 
 import os
 
@@ -8,11 +8,8 @@ import pytest
 
 import hexsos_plugins as hs
 from comparison.stress import stress
-from hexsos_plugins.cells.quality import SAMPLES
-from hexsos_plugins.meshrepair import kernels as lo
 from hexsos_plugins.meshrepair import optimize as op
-from hexsos_plugins.meshrepair.boundary import boundary_model, quad_corners, quad_incidence
-from hexsos_plugins.meshrepair.localopt import vertex_freedoms
+from hexsos_plugins.meshrepair.boundary import boundary_model, quad_corners
 
 CUBE = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [0, 0, 1], [1, 0, 1], [1, 1, 1], [0, 1, 1]], float)
 
@@ -140,52 +137,6 @@ def test_turned_quads_counts_a_folded_surface_and_not_a_moved_one():
     bmw = boundary_model(W, [("hexahedron", H)])
     folded = ~np.isclose(np.abs(bmw.quad_normal).max(axis=1), 1.0)
     assert folded.any() and (bmw.quad_normal[folded][:, 2] > 0.5).all()
-
-
-def test_quad_incidence_lists_each_quad_at_its_four_vertices():
-    P, H = _slab(3)
-    bm = boundary_model(P, [("hexahedron", H)])
-    qptr, qinc, quads, qn = bm.quad_incidence(len(P))
-    assert qptr[-1] == 4 * len(quads) and qn.shape == (len(quads), 3)
-    for v in range(len(P)):
-        at = sorted(qinc[qptr[v]:qptr[v + 1]].tolist())
-        assert at == sorted(np.flatnonzero((quads == v).any(axis=1)).tolist())
-    empty = quad_incidence(np.zeros((0, 4), dtype=np.int64), np.zeros((0, 3)), 5)
-    assert empty[0].tolist() == [0] * 6 and empty[1].size == 0
-
-
-def _sweep_vertex_6(V, quad, n, guard, steps=20):
-    """The vertex steps on the unit cube's vertex 6 alone (V: the cube's 8 vertices, then others), with the quad
-    ``quad`` (1, 4) and its normal n guarded or not: (V', steps, the quad's least corner, the hex's least SJ)."""
-    G, factor = SAMPLES["hexahedron"]
-    G = np.ascontiguousarray(G)
-    H = np.arange(8, dtype=np.int64)[None]
-    V = V.copy()
-    N = V.shape[0]
-    movable = np.zeros(N, dtype=bool)
-    movable[6] = True
-    proj, ptr, inc, loc, step0 = vertex_freedoms(V, H, movable, None, 0.1)
-    g = quad_incidence(quad if guard else np.zeros((0, 4), dtype=np.int64), n if guard else np.zeros((0, 3)), N)
-    cell = lo.cell_minima(V, H, G, float(factor))
-    taken = lo.sweep(V, H, G, float(factor), np.array([6], dtype=np.int64), ptr, inc, loc, proj, step0, 0.02, steps,
-                     cell, V.copy(), np.zeros((N, 3, 3)), np.full(N, np.inf), 0.0, *g)
-    return V, taken, float(quad_corners(V, quad, n).min()), float(cell[0])
-
-
-def test_the_vertex_steps_turn_no_guarded_quad_over():
-    """Vertex 6 of a unit cube pulled out to (1.6, 1.6, 1): its steps back toward (1, 1, 1) cross the diagonal of a
-    quad (6, 8, 9, 10) whose corners are positive against its normal. Unguarded they turn it over; guarded they
-    stop short of it, the hex still raised."""
-    V = np.vstack([CUBE, [[1.5, 1.0, 1.0], [1.1, 1.1, 1.0], [1.0, 1.5, 1.0]]])
-    V[6] = [1.6, 1.6, 1.0]
-    quad = np.array([[6, 8, 9, 10]], dtype=np.int64)
-    n = np.array([[0.0, 0.0, -1.0]])
-    _, _, least0, sj0 = _sweep_vertex_6(V, quad, n, guard=True, steps=0)
-    _, steps, least_free, sj_free = _sweep_vertex_6(V, quad, n, guard=False)
-    W, steps_g, least_g, sj_g = _sweep_vertex_6(V, quad, n, guard=True)
-    assert least0 > 0 and steps > 0 and least_free < 0 and sj_free > 0.99  # unguarded: to the cube, the quad turned
-    assert steps_g > 0 and least_g > 0 and sj0 < sj_g < sj_free  # guarded: short of it, the quad kept
-    assert np.array_equal(W[:6], V[:6]) and np.array_equal(W[7:], V[7:])
 
 
 def test_published_kitten_stress_test_certified_with_its_surface_unfolded():

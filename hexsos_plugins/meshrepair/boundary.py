@@ -28,7 +28,7 @@ from ..cells.elements import ELEMENTS
 from ..errors import DependencyError
 
 __all__ = ["boundary_faces", "interior_vertices", "BoundaryModel", "NearestPoints", "boundary_model", "Slide",
-           "quad_incidence", "quad_corners"]
+           "quad_corners"]
 
 
 def _faces_of(cells):
@@ -65,17 +65,6 @@ def interior_vertices(cells, n_points):
     for F in boundary_faces(cells):
         inner[F.ravel()] = False
     return inner
-
-
-def quad_incidence(quads, normal, n_points):
-    """(qptr (n_points + 1,), qinc, quads, normal): the quads at each vertex (CSR), C-contiguous for the vertex
-    steps."""
-    quads = np.ascontiguousarray(quads, dtype=np.int64).reshape(-1, 4)
-    vert = quads.ravel()
-    qinc = np.repeat(np.arange(quads.shape[0], dtype=np.int64), 4)[np.argsort(vert, kind="stable")]
-    qptr = np.zeros(int(n_points) + 1, dtype=np.int64)
-    np.cumsum(np.bincount(vert, minlength=int(n_points)), out=qptr[1:])
-    return qptr, qinc, quads, np.ascontiguousarray(normal, dtype=np.float64).reshape(-1, 3)
 
 
 def quad_corners(V, quads, normal):
@@ -179,12 +168,6 @@ class BoundaryModel:
         """The boundary quads, their input normals and squared sizes: an optimizer's ``surface`` (stage 1's term and
         stage 2's barrier keep them from turning over, :class:`hexsos_plugins.meshrepair.optimize.Problem`)."""
         return self.quads, self.quad_normal, self.quad_s2
-
-    def quad_incidence(self, n_points):
-        """The boundary quads at each vertex: (qptr (n_points + 1,), qinc, quads (Q, 4), normals (Q, 3)), CSR."""
-        quads = np.zeros((0, 4), dtype=np.int64) if self.quads is None else self.quads
-        normal = np.zeros((0, 3)) if self.quad_normal is None else self.quad_normal
-        return quad_incidence(quads, normal, n_points)
 
     def slide(self, V, movable) -> Slide:
         """The penalty terms of the boundary vertices that may move (``movable`` (N,) bool), not corners."""

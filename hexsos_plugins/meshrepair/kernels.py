@@ -763,48 +763,9 @@ def edge_ratios_above(V, conn, floor2):
     return True
 
 
-@njit(cache=True, inline="always")
-def _quad_least(V, quads, qn, q):
-    """The least ``n . (a x b)`` over the corners of boundary quad q (a, b a corner's edges to the next and the
-    previous corner, n the quad's input normal): <= 0 where it is turned over or degenerate at a corner."""
-    least = np.inf
-    for c in range(4):
-        i0, i1, i2 = quads[q, c], quads[q, (c + 1) % 4], quads[q, (c + 3) % 4]
-        a0, a1, a2 = V[i1, 0] - V[i0, 0], V[i1, 1] - V[i0, 1], V[i1, 2] - V[i0, 2]
-        b0, b1, b2 = V[i2, 0] - V[i0, 0], V[i2, 1] - V[i0, 1], V[i2, 2] - V[i0, 2]
-        d = qn[q, 0] * (a1 * b2 - a2 * b1) + qn[q, 1] * (a2 * b0 - a0 * b2) + qn[q, 2] * (a0 * b1 - a1 * b0)
-        if d < least:
-            least = d
-    return least
-
-
-@njit(cache=True, inline="always")
-def _most_quads(qptr):
-    """The most boundary quads at one vertex (CSR ``qptr``), at least 1."""
-    most = 1
-    for v in range(qptr.shape[0] - 1):
-        if qptr[v + 1] - qptr[v] > most:
-            most = qptr[v + 1] - qptr[v]
-    return most
-
-
-@njit(cache=True, inline="always")
-def _quads_keep(V, qptr, qinc, quads, qn, v, before, record):
-    """``record``: the least corner of each boundary quad at vertex v into ``before``, returns True. Otherwise
-    whether no quad at v whose least corner was positive has one <= 0 now (one that was not is left free: stage 1
-    unfolds those)."""
-    for j in range(qptr[v], qptr[v + 1]):
-        d = _quad_least(V, quads, qn, qinc[j])
-        if record:
-            before[j - qptr[v]] = d
-        elif d <= 0.0 < before[j - qptr[v]]:
-            return False
-    return True
-
-
 @njit(cache=True)
 def sweep(V, conn, G, factor, order, ptr, inc, loc, proj, step0, tau, max_steps, cell_sj, ref, A, width,
-          ratio_floor, qptr, qinc, quads, qn):
+          ratio_floor):
     """One pass over the vertices ``order``: each moves by up to ``max_steps`` accepted steps (see the module
     docstring). ``ptr``/``inc``/``loc``: the hexes around each vertex (CSR) and the vertex's node index in each;
     ``proj`` (N, 3, 3) the projector onto each vertex's freedom; ``step0`` (N,) the first trial length (a fraction
@@ -814,16 +775,13 @@ def sweep(V, conn, G, factor, order, ptr, inc, loc, proj, step0, tau, max_steps,
     outside goes to the nearest point inside, and on the band's edge the part of a step leaving it goes. V is
     updated in place. ``ratio_floor``: no accepted step takes a hex's shortest edge over its longest below the
     lesser of its own and this (the scaled Jacobian does not see an edge's length: without it the steps collapsed
-    edges to 1e-5 of their hex's longest). ``qptr``/``qinc``: the boundary quads ``quads`` (Q, 4) at each vertex
-    (CSR), ``qn`` (Q, 3) their input normals: no accepted step turns a quad's corner over (:func:`_quads_keep`: a
-    quad's least corner positive stays positive). Returns the number of accepted steps."""
+    edges to 1e-5 of their hex's longest). Returns the number of accepted steps."""
     K = G.shape[0]
     valence = 0
     for v in range(ptr.shape[0] - 1):
         if ptr[v + 1] - ptr[v] > valence:
             valence = ptr[v + 1] - ptr[v]
     floor2 = np.empty(valence)
-    qbefore = np.empty(_most_quads(qptr))
     rf2 = ratio_floor * ratio_floor
     E = np.empty((3, 3))
     C = np.empty((3, 3))
@@ -910,7 +868,6 @@ def sweep(V, conn, G, factor, order, ptr, inc, loc, proj, step0, tau, max_steps,
                 _cell_eval(V, conn, inc[j], G, factor, m0, tau, ev2, E, C, XU, XV, XW, b, eu, ev, ew)
                 s0 += ev2[1]
                 floor2[j - lo] = min(_edge_ratio2(V, conn, inc[j]), rf2) if rf2 > 0.0 else -1.0
-            _quads_keep(V, qptr, qinc, quads, qn, v, qbefore, True)
             h = step0[v] / nrm
             ok = False
             for _t in range(12):
@@ -940,9 +897,8 @@ def sweep(V, conn, G, factor, order, ptr, inc, loc, proj, step0, tau, max_steps,
                         m1 = -np.inf
                         break
                 if m1 >= m0 and s1 < s0:
-                    if _quads_keep(V, qptr, qinc, quads, qn, v, qbefore, False):
-                        ok = True
-                        break
+                    ok = True
+                    break
                 h *= 0.5
             if not ok:
                 V[v, 0] = x0[0]
@@ -1014,13 +970,11 @@ def bernstein_minima(V, conn, inv3):
 
 
 @njit(cache=True)
-def sweep_bernstein(V, conn, inv3, order, ptr, inc, loc, proj, step0, tau, max_steps, cell_q, floor, qptr, qinc,
-                    quads, qn):
+def sweep_bernstein(V, conn, inv3, order, ptr, inc, loc, proj, step0, tau, max_steps, cell_q, floor):
     """:func:`sweep` with the least Bernstein coefficient of det J (in units of s^3) as each hex's measure:
     moves that lower the soft minimum of the coefficients of the hexes around a vertex, lower no hex's least
     coefficient below min(its own, ``floor``) and so the least of them not at all: a hex whose coefficients are
-    above ``floor`` > 0 keeps them positive (a fold inside untangled without making others), and turn no boundary
-    quad's corner over (as in :func:`sweep`)."""
+    above ``floor`` > 0 keeps them positive (a fold inside untangled without making others)."""
     XU = np.empty((3, 3, 3))
     XV = np.empty((3, 3, 3))
     XW = np.empty((3, 3, 3))
@@ -1036,7 +990,6 @@ def sweep_bernstein(V, conn, inv3, order, ptr, inc, loc, proj, step0, tau, max_s
     g = np.empty(3)
     x0 = np.empty(3)
     ev2 = np.empty(2)
-    qbefore = np.empty(_most_quads(qptr))
     accepted = 0
     for oi in range(order.shape[0]):
         v = order[oi]
@@ -1074,7 +1027,6 @@ def sweep_bernstein(V, conn, inv3, order, ptr, inc, loc, proj, step0, tau, max_s
             x0[1] = V[v, 1]
             x0[2] = V[v, 2]
             h = step0[v] / nrm
-            _quads_keep(V, qptr, qinc, quads, qn, v, qbefore, True)
             ok = False
             for _t in range(12):
                 V[v, 0] = x0[0] + h * d0
@@ -1094,9 +1046,8 @@ def sweep_bernstein(V, conn, inv3, order, ptr, inc, loc, proj, step0, tau, max_s
                         keep = False
                         break
                 if keep and s1 < s0:
-                    if _quads_keep(V, qptr, qinc, quads, qn, v, qbefore, False):
-                        ok = True
-                        break
+                    ok = True
+                    break
                 h *= 0.5
             if not ok:
                 V[v, 0] = x0[0]
@@ -1133,9 +1084,8 @@ SIGNATURES = {
     "edge_ratios_above": (_F2, _I2, _F1),
     "cell_minima": (_F2, _I2, _F3, _f8),
     "bernstein_minima": (_F2, _I2, _F1),
-    "sweep": (_F2, _I2, _F3, _f8, _I1, _I1, _I1, _I1, _F3, _F1, _f8, _i8, _F1, _F2, _F3, _F1, _f8,
-              _I1, _I1, _I2, _F2),
-    "sweep_bernstein": (_F2, _I2, _F1, _I1, _I1, _I1, _I1, _F3, _F1, _f8, _i8, _F1, _f8, _I1, _I1, _I2, _F2),
+    "sweep": (_F2, _I2, _F3, _f8, _I1, _I1, _I1, _I1, _F3, _F1, _f8, _i8, _F1, _F2, _F3, _F1, _f8),
+    "sweep_bernstein": (_F2, _I2, _F1, _I1, _I1, _I1, _I1, _F3, _F1, _f8, _i8, _F1, _f8),
 }
 
 

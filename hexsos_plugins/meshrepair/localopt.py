@@ -83,16 +83,6 @@ def vertex_freedoms(V, H, movable, boundary, step):
     return proj, ptr, inc, loc, step * _edge_length(V, H, N)
 
 
-def _surface_guard(boundary, N):
-    """The boundary quads the vertex steps keep from turning over (:func:`hexsos_plugins.meshrepair.kernels.sweep`):
-    the boundary's (:meth:`hexsos_plugins.meshrepair.boundary.BoundaryModel.quad_incidence`), none without one."""
-    from .boundary import quad_incidence
-
-    if boundary is None:
-        return quad_incidence(np.zeros((0, 4), dtype=np.int64), np.zeros((0, 3)), N)
-    return boundary.quad_incidence(N)
-
-
 def band_limits(V, movable, boundary, proj, allowed):
     """The band of each boundary vertex (:attr:`hexsos_plugins.meshrepair.boundary.BoundaryModel.tolerance`) for
     :func:`hexsos_plugins.meshrepair.kernels.sweep`: (ref (N, 3), A (N, 3, 3), width (N,)), width inf where there is
@@ -143,7 +133,6 @@ def local_untangle(V, H, sizes, movable, *, boundary=None, deadline=None, band=0
     N = V.shape[0]
     inv3 = 1.0 / np.asarray(sizes, dtype=np.float64) ** 3
     proj, ptr, inc, loc, step0 = vertex_freedoms(V, H, movable, boundary, step)
-    guard = _surface_guard(boundary, N)
     can = np.abs(proj).sum(axis=(1, 2)) > 0
     q = lo.bernstein_minima(V, H, inv3)
     info = {"sweeps": 0, "steps": 0, "bad_before": int((q <= 0).sum())}
@@ -158,7 +147,7 @@ def local_untangle(V, H, sizes, movable, *, boundary=None, deadline=None, band=0
             break
         verts = _worst_first(H, q, verts, N)
         info["steps"] += int(lo.sweep_bernstein(V, H, inv3, verts, ptr, inc, loc, proj, step0, tau, 1, q,
-                                                        margin, *guard))
+                                                        margin))
         info["sweeps"] += 1
         m = float(q.min())
         if m > best + 1e-6:
@@ -192,7 +181,6 @@ def local_sweeps(V, H, movable, *, boundary=None, deadline=None, band=0.1, tau=0
     G, factor = SAMPLES["hexahedron"]
     G = np.ascontiguousarray(G)
     proj, ptr, inc, loc, step0 = vertex_freedoms(V, H, movable, boundary, step)
-    guard = _surface_guard(boundary, N)
     cell_sj = lo.cell_minima(V, H, G, float(factor))
     allowed = np.zeros(N, dtype=bool)
     allowed[H[cell_sj < band_below].ravel()] = True
@@ -214,7 +202,7 @@ def local_sweeps(V, H, movable, *, boundary=None, deadline=None, band=0.1, tau=0
             break
         verts = _worst_first(H, cell_sj, verts, N)  # by the least scaled Jacobian of the hexes around each
         info["steps"] += int(lo.sweep(V, H, G, float(factor), verts, ptr, inc, loc, proj, step0, tau, max_steps,
-                                      cell_sj, ref, A, width, RATIO_FLOOR, *guard))
+                                      cell_sj, ref, A, width, RATIO_FLOOR))
         info["sweeps"] += 1
         if project is not None and info["sweeps"] % project_every == 0:
             V = _project(project, V, V_last, boundary, H, G, factor, cell_sj, ref, width)
