@@ -28,7 +28,7 @@ from ..cells.elements import ELEMENTS
 from ..errors import DependencyError
 
 __all__ = ["boundary_faces", "interior_vertices", "BoundaryModel", "NearestPoints", "boundary_model", "Slide",
-           "quad_corners"]
+           "quad_areas", "quad_corners"]
 
 
 def _faces_of(cells):
@@ -65,6 +65,11 @@ def interior_vertices(cells, n_points):
     for F in boundary_faces(cells):
         inner[F.ravel()] = False
     return inner
+
+
+def quad_areas(V, quads):
+    """(Q, 3): twice the vector area of each quad (the cross product of its diagonals)."""
+    return np.cross(V[quads[:, 2]] - V[quads[:, 0]], V[quads[:, 3]] - V[quads[:, 1]])
 
 
 def quad_corners(V, quads, normal):
@@ -160,9 +165,7 @@ class BoundaryModel:
         surface is folded there, with the cells on both sides valid or not)."""
         if self.quads is None or self.quads.shape[0] == 0:
             return np.zeros(0, dtype=bool)
-        q = self.quads
-        area = np.cross(V[q[:, 2]] - V[q[:, 0]], V[q[:, 3]] - V[q[:, 1]])
-        return (area * self.quad_normal).sum(axis=1) <= 0
+        return (quad_areas(V, self.quads) * self.quad_normal).sum(axis=1) <= 0
 
     def surface(self):
         """The boundary quads, their input normals and squared sizes: an optimizer's ``surface`` (stage 1's term and
@@ -278,7 +281,7 @@ def boundary_model(points, cells, *, feature_angle: float = 45.0, suspect=None, 
         a, b, c = P[tris[:, 0]], P[tris[:, 1]], P[tris[:, 2]]
         fn.append(0.5 * np.cross(b - a, c - a))
     if quads.shape[0]:
-        fn.append(0.5 * np.cross(P[quads[:, 2]] - P[quads[:, 0]], P[quads[:, 3]] - P[quads[:, 1]]))
+        fn.append(0.5 * quad_areas(P, quads))
     fn = np.concatenate(fn) if fn else np.zeros((0, 3))
     allf = np.concatenate([np.pad(tris, ((0, 0), (0, 1)), constant_values=-1), quads]) if faces else np.zeros((0, 4), int)
     verts = np.unique(allf[allf >= 0])
@@ -359,9 +362,7 @@ def boundary_model(points, cells, *, feature_angle: float = 45.0, suspect=None, 
     # vertex normals of both sides cancel
     qn = fn[tris.shape[0]:]
     qbad = area[tris.shape[0]:] <= 1e-12 * (float(np.median(area)) if area.size else 0.0)
-    for c in range(4):
-        x0, x1, x3 = P[quads[:, c]], P[quads[:, (c + 1) % 4]], P[quads[:, (c + 3) % 4]]
-        qbad |= (np.cross(x1 - x0, x3 - x0) * qn).sum(axis=1) <= 0
+    qbad |= quad_corners(P, quads, qn).min(axis=1) <= 0
     qn = np.where(qbad[:, None], vn[quads].sum(axis=1), qn)
     qn = qn / np.maximum(np.linalg.norm(qn, axis=1, keepdims=True), 1e-300)
     size2 = np.zeros(N)
