@@ -291,7 +291,7 @@ def subdivided(cases=SUBDIVIDED, jobs=0):
         st = r.stats
         diag = float(np.linalg.norm(P.max(axis=0) - P.min(axis=0)))
         f = _fid(P, r.points, H, [])
-        haus = "n/a" if f is None else f"{100 * f['hausdorff_max'] / diag:.2f}%"
+        haus = "n/a" if f is None or f["hausdorff_max"] is None else f"{100 * f['hausdorff_max'] / diag:.2f}%"
         sj0 = float(scaled_jacobian(P0, [("hexahedron", H)]).min())
         print(f"| {shape} ({size:g}) | {len(H):,} | {100 * frac:g}% ({amp:g}) | "
               f"{st['invalid_before'] + st['undecided_before']:,} -> {st['invalid_after'] + st['undecided_after']:,} | "

@@ -293,6 +293,49 @@ def test_boundary_fidelity_measures_what_moved():
     assert f["self_intersecting_before"] == 0 and f["self_intersecting_after"] > 0
 
 
+def test_boundary_fidelity_of_a_surface_of_no_area_says_so_instead_of_crashing():
+    """pymeshlab's Hausdorff filter crashes the process sampling a surface of no area and does not return targeting
+    one: such a surface, before or after, gets no Hausdorff distance and a note, the self-intersections still."""
+    pytest.importorskip("pymeshlab")
+    from hexsos_plugins.meshrepair.fidelity import boundary_fidelity, surface_area
+
+    P, H = structured_grid(2)
+    point = np.zeros_like(P)  # every point coincident
+    line = np.zeros_like(P)
+    line[:, 0] = np.arange(len(P))  # every point on one line
+    for before, after, which in ((point, P, "before"), (P, line, "after"), (line, point, "before and after")):
+        f = boundary_fidelity(before, after, H)
+        assert f["hausdorff_max"] is None and f["hausdorff_max_relative"] is None
+        assert f"surface {which} the repair has no area" in f["hausdorff_note"]
+        assert f["self_intersecting_before"] == 0 and f["boundary_quads"] == 24
+    # the negative case: a surface with an area has its distance, and no note
+    Q = P.copy()
+    Q[P[:, 2] == 1.0, 2] += 0.25
+    f = boundary_fidelity(P, Q, H)
+    assert f["hausdorff_max"] == pytest.approx(0.25, rel=1e-4) and "hausdorff_note" not in f
+    assert surface_area(P, np.array([[0, 1, 3]])) == pytest.approx(0.125)  # a right triangle of legs 0.5
+    assert surface_area(line, np.array([[0, 1, 2]])) == 0.0
+
+
+def test_cli_repair_of_a_mesh_with_every_point_coincident_ends_without_a_crash(tmp_path):
+    """Every point of the input at one place: the repair's report has no Hausdorff distance, says why, and the
+    process exits with a code (before: a segmentation fault in pymeshlab, with no output file written)."""
+    import subprocess
+    import sys
+
+    pytest.importorskip("pymeshlab")
+    P, H = structured_grid(2)
+    src, out = tmp_path / "coincident.vtu", tmp_path / "out.vtu"
+    meshio.write(str(src), meshio.Mesh(np.zeros_like(P), [("hexahedron", H)]))
+    run = subprocess.run([sys.executable, "-m", "hexsos_plugins", "repair", str(src), "-o", str(out), "--no-progress"],
+                         capture_output=True, text=True, timeout=300)
+    assert run.returncode in (0, 1), run.stderr
+    assert "Traceback" not in run.stderr
+    assert "Hausdorff not computed: the boundary surface before the repair has no area" in run.stdout
+    assert "0 -> 0 boundary quads turned over" in run.stdout  # no input normal: none counts as turned
+    assert out.exists()
+
+
 def test_fidelity_without_pymeshlab_names_the_extra(monkeypatch):
     import sys
 

@@ -137,6 +137,10 @@ def test_turned_quads_counts_a_folded_surface_and_not_a_moved_one():
     bmw = boundary_model(W, [("hexahedron", H)])
     folded = ~np.isclose(np.abs(bmw.quad_normal).max(axis=1), 1.0)
     assert folded.any() and (bmw.quad_normal[folded][:, 2] > 0.5).all()
+    # an input of no area (every point coincident) gives its quads no normal: none counts as turned, whatever follows
+    bm0 = boundary_model(np.zeros_like(P), [("hexahedron", H)])
+    assert (bm0.quad_normal == 0).all()
+    assert bm0.turned_quads(np.zeros_like(P)).sum() == 0 and bm0.turned_quads(V).sum() == 0
 
 
 def test_published_kitten_stress_test_certified_with_its_surface_unfolded():

@@ -330,9 +330,10 @@ def _finish(args, mesh, orient, result, bar, cells) -> int:
             print("orientation: left-handed file, hexes flipped (--fix-orientation)")
         print(result.summary())
         if fidelity is not None:
-            print(f"boundary          Hausdorff max {fidelity['hausdorff_max']:.6g} "
-                  f"({100 * fidelity['hausdorff_max_relative']:.4g}% of the bbox diagonal), mean "
-                  f"{fidelity['hausdorff_mean']:.6g}; self-intersecting boundary faces "
+            haus = (f"Hausdorff {fidelity['hausdorff_note']}" if fidelity["hausdorff_max"] is None else
+                    f"Hausdorff max {fidelity['hausdorff_max']:.6g} ({100 * fidelity['hausdorff_max_relative']:.4g}% "
+                    f"of the bbox diagonal), mean {fidelity['hausdorff_mean']:.6g}")
+            print(f"boundary          {haus}; self-intersecting boundary faces "
                   f"{fidelity['self_intersecting_before']} -> {fidelity['self_intersecting_after']}")
         print(f"wrote {args.output}" + "".join(f" and {x}" for x in (args.plot, args.histogram) if x))
         for w in stats["warnings"]:

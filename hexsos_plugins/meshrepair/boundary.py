@@ -162,10 +162,12 @@ class BoundaryModel:
 
     def turned_quads(self, V) -> np.ndarray:
         """(Q,) bool: the boundary quads whose vector area at V points against their input normal (turned over: the
-        surface is folded there, with the cells on both sides valid or not)."""
+        surface is folded there, with the cells on both sides valid or not). A quad with no input normal (neither it
+        nor its vertices' faces had an area in the input: every point coincident) counts as not turned."""
         if self.quads is None or self.quads.shape[0] == 0:
             return np.zeros(0, dtype=bool)
-        return (quad_areas(V, self.quads) * self.quad_normal).sum(axis=1) <= 0
+        n = self.quad_normal
+        return ((quad_areas(V, self.quads) * n).sum(axis=1) <= 0) & (n != 0).any(axis=1)
 
     def surface(self):
         """The boundary quads, their input normals and squared sizes: an optimizer's ``surface`` (stage 1's term and

@@ -21,7 +21,7 @@ import numpy as np
 from ..errors import DependencyError, InvalidInputError
 from ..cells.elements import HEX_FACES
 
-__all__ = ["boundary_fidelity", "boundary_quads"]
+__all__ = ["boundary_fidelity", "boundary_quads", "surface_area"]
 
 
 
@@ -41,6 +41,12 @@ def boundary_quads(hexes) -> np.ndarray:
     key = np.sort(faces, axis=1)
     _, inv, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
     return faces[counts[inv.ravel()] == 1]
+
+
+def surface_area(V, tri) -> float:
+    """The area of the triangles ``tri`` (T, 3) at ``V``."""
+    a = np.cross(V[tri[:, 1]] - V[tri[:, 0]], V[tri[:, 2]] - V[tri[:, 0]])
+    return 0.5 * float(np.sqrt((a * a).sum(axis=1)).sum())
 
 
 def _surface(points, quads, tris=None):
@@ -74,7 +80,9 @@ def boundary_fidelity(points_before, points_after, hexes, *, cells=None, samples
     (the larger of both directions' means), ``hausdorff_max_relative`` and ``hausdorff_mean_relative``
     (divided by ``bbox_diagonal``, of the boundary before), ``hausdorff_forward`` / ``hausdorff_backward``
     (max, mean, samples of each direction), ``self_intersecting_before`` / ``self_intersecting_after``
-    (boundary quads with a self-intersecting triangle), ``boundary_quads``, ``boundary_vertices_moved``.
+    (boundary quads with a self-intersecting triangle), ``boundary_quads``, ``boundary_vertices_moved``. Where
+    the surface before or after has no area (every point of it on one line), the Hausdorff entries are None and
+    ``hausdorff_note`` says why: pymeshlab cannot sample such a surface.
 
     Raises
     ------
@@ -110,11 +118,17 @@ def boundary_fidelity(points_before, points_after, hexes, *, cells=None, samples
     ms = ml.MeshSet()
     ms.add_mesh(ml.Mesh(vertex_matrix=va, face_matrix=tri), "before")
     ms.add_mesh(ml.Mesh(vertex_matrix=vb, face_matrix=tri), "after")
-    big = ml.PureValue(1e30)  # no cut-off: every sample counts (the default ignores distances > 5% of the bbox)
-    n = int(samples_per_face) * tri.shape[0] + va.shape[0]
-    kw = dict(samplevert=True, sampleedge=True, sampleface=True, samplenum=n, maxdist=big)
-    fwd = ms.get_hausdorff_distance(sampledmesh=0, targetmesh=1, **kw)
-    bwd = ms.get_hausdorff_distance(sampledmesh=1, targetmesh=0, **kw)
+    flat = [name for name, v in (("before", va), ("after", vb)) if not surface_area(v, tri) > 0]
+    if flat:
+        # pymeshlab cannot sample a surface of no area (its points coincident or on one line): measured, its
+        # Hausdorff filter crashes the process (segmentation fault) sampling one and does not return targeting one
+        fwd = bwd = None
+    else:
+        big = ml.PureValue(1e30)  # no cut-off: every sample counts (the default ignores distances > 5% of the bbox)
+        n = int(samples_per_face) * tri.shape[0] + va.shape[0]
+        kw = dict(samplevert=True, sampleedge=True, sampleface=True, samplenum=n, maxdist=big)
+        fwd = ms.get_hausdorff_distance(sampledmesh=0, targetmesh=1, **kw)
+        bwd = ms.get_hausdorff_distance(sampledmesh=1, targetmesh=0, **kw)
     nq = quads.shape[0]
 
     def self_intersecting(mesh_id):
@@ -124,9 +138,16 @@ def boundary_fidelity(points_before, points_after, hexes, *, cells=None, samples
         return int((sel[:nq] | sel[nq:2 * nq]).sum() + sel[2 * nq:].sum())
 
     before, after = self_intersecting(0), self_intersecting(1)
+    moved = int(np.any(va != vb, axis=1).sum())
+    if fwd is None:
+        return {"hausdorff_max": None, "hausdorff_mean": None, "hausdorff_max_relative": None,
+                "hausdorff_mean_relative": None, "bbox_diagonal": diag, "hausdorff_forward": None,
+                "hausdorff_backward": None,
+                "hausdorff_note": f"not computed: the boundary surface {' and '.join(flat)} the repair has no area",
+                "self_intersecting_before": before, "self_intersecting_after": after, "boundary_quads": quads.shape[0],
+                "boundary_triangles": int(tris.shape[0]), "boundary_vertices_moved": moved}
     hmax = float(max(fwd["max"], bwd["max"]))
     hmean = float(max(fwd["mean"], bwd["mean"]))
-    moved = int(np.any(va != vb, axis=1).sum())
     if moved == 0:  # identical surfaces: exactly 0 (pymeshlab computes in single precision)
         hmax = hmean = 0.0
     return {
