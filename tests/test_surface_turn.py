@@ -143,6 +143,27 @@ def test_turned_quads_counts_a_folded_surface_and_not_a_moved_one():
     assert bm0.turned_quads(np.zeros_like(P)).sum() == 0 and bm0.turned_quads(V).sum() == 0
 
 
+def test_tilted_quads_counts_quads_standing_up_from_their_input_normal_and_not_those_sheared_a_little():
+    """A top quad of the slab tilted by raising one of its edges: its vector area turns by atan(rise) from the input
+    normal (+z); past 60 degrees it counts as tilted, not yet as turned; below 60 it does not count."""
+    P, H = _slab(3)
+    bm = boundary_model(P, [("hexahedron", H)])
+    assert np.allclose(bm.quad_tilt(P), 1.0) and bm.tilted_quads(P).sum() == 0
+    top = np.flatnonzero(np.all(P[bm.quads][:, :, 2] == 1, axis=1))
+    corner = top[np.argmin(P[bm.quads[top]].sum(axis=(1, 2)))]  # the top quad at x, y in [0, 1]
+    edge = [v for v in bm.quads[corner] if P[v, 0] == 1 and P[v, 2] == 1]  # its edge x = 1, shared with others
+    for rise, tilted in ((1.0, False), (1.5, False), (2.0, True), (5.0, True)):  # 45, 56.3, 63.4, 78.7 degrees
+        V = P.copy()
+        V[edge, 2] += rise
+        cos = bm.quad_tilt(V)[corner]
+        assert cos == pytest.approx(1.0 / np.hypot(1.0, rise), rel=1e-12)
+        assert bm.tilted_quads(V)[corner] == tilted and not bm.turned_quads(V)[corner]
+        assert bm.tilted_quads(V, degrees=80.0).sum() == 0
+    V = P.copy()
+    V[edge, 0] = -1.0  # pushed past the quad's other edge: turned over, and so tilted too
+    assert bm.turned_quads(V)[corner] and bm.tilted_quads(V)[corner] and bm.quad_tilt(V)[corner] == -1.0
+
+
 def test_published_kitten_stress_test_certified_with_its_surface_unfolded():
     """kitten_with_bifur_3 with every interior vertex moved by up to 3 edge lengths: before stage 1's surface term,
     its untangling slid boundary vertices until 93 of its boundary quads turned over in its first second, and one

@@ -28,7 +28,11 @@ from ..cells.elements import ELEMENTS
 from ..errors import DependencyError
 
 __all__ = ["boundary_faces", "interior_vertices", "BoundaryModel", "NearestPoints", "boundary_model", "Slide",
-           "quad_areas", "quad_corners"]
+           "quad_areas", "quad_corners", "TILT_DEGREES"]
+
+#: A boundary quad whose vector area is more than this many degrees from its input normal counts as tilted
+#: (:meth:`BoundaryModel.tilted_quads`): the repair's report counts them beside the quads turned over
+TILT_DEGREES = 60.0
 
 
 def _faces_of(cells):
@@ -164,10 +168,24 @@ class BoundaryModel:
         """(Q,) bool: the boundary quads whose vector area at V points against their input normal (turned over: the
         surface is folded there, with the cells on both sides valid or not). A quad with no input normal (neither it
         nor its vertices' faces had an area in the input: every point coincident) counts as not turned."""
+        return self.quad_tilt(V) <= 0
+
+    def tilted_quads(self, V, degrees: float = TILT_DEGREES) -> np.ndarray:
+        """(Q,) bool: the boundary quads whose vector area at V is more than ``degrees`` from their input normal
+        (turned over ones too): the surface's orientation lost there, though its vertices may lie on it."""
+        return self.quad_tilt(V) < np.cos(np.radians(float(degrees)))
+
+    def quad_tilt(self, V) -> np.ndarray:
+        """(Q,): the cosine of the angle between each boundary quad's vector area at V and its input normal (-1 to
+        1; 0 where the quad has no area at V); 1 for a quad with no input normal (every point of the input
+        coincident), which counts as neither turned nor tilted."""
         if self.quads is None or self.quads.shape[0] == 0:
-            return np.zeros(0, dtype=bool)
+            return np.zeros(0)
         n = self.quad_normal
-        return ((quad_areas(V, self.quads) * n).sum(axis=1) <= 0) & (n != 0).any(axis=1)
+        a = quad_areas(V, self.quads)
+        size = np.sqrt((a * a).sum(axis=1))
+        cos = np.where(size > 0, (a * n).sum(axis=1) / np.where(size > 0, size, 1.0), 0.0)
+        return np.where((n != 0).any(axis=1), cos, 1.0)
 
     def surface(self):
         """The boundary quads, their input normals and squared sizes: an optimizer's ``surface`` (stage 1's term and

@@ -446,7 +446,9 @@ def repair(points, hexes, *, cells=None, method: str = "optimize", boundary: str
         ``by_type``, ``min_det_before`` / ``_after``, ``min_sj_before`` / ``_after``, ``p1_sj_*``,
         ``mean_sj_*``, ``min_sj_target``, ``min_sj_target_reached``, ``turned_quads_before`` / ``_after``
         (boundary quads whose vector area points against their input normal: the surface folded there; with a
-        boundary model, not for ``boundary="free"``), ``max_displacement``,
+        boundary model, not for ``boundary="free"``), ``tilted_quads_before`` / ``_after`` (more than
+        :data:`~hexsos_plugins.meshrepair.boundary.TILT_DEGREES` from it, turned ones too), ``boundary_quads``,
+        ``max_displacement``,
         ``mean_displacement``, ``moved_vertices``, ``pinned_vertices``, ``boundary``, ``method``,
         ``stage_seconds``, ``seconds`` (from the start, after ``load_seconds``: the compiled loops loaded, or
         compiled on first use, :func:`hexsos_plugins.meshrepair.kernels.load`), ``message``, ...
@@ -1198,5 +1200,8 @@ class _Optimize:
         if bm is not None and bm.quads is not None:
             stats["turned_quads_before"] = int(bm.turned_quads(P0).sum())
             stats["turned_quads_after"] = int(bm.turned_quads(V).sum())
+            stats["tilted_quads_before"] = int(bm.tilted_quads(P0).sum())
+            stats["tilted_quads_after"] = int(bm.tilted_quads(V).sum())
+            stats["boundary_quads"] = int(bm.quads.shape[0])
         return RepairResult(points=V, success=ok, check=r, history=self.history, stats=stats, displacement=disp,
                             message=message, extra={"other_cells": o})

@@ -11,6 +11,7 @@ import numpy as np
 
 from ..certify import CheckResult
 from ..cells.quality import SHORT_EDGE_RATIO
+from .boundary import TILT_DEGREES
 
 __all__ = ["RepairResult", "readonly"]
 
@@ -113,7 +114,10 @@ def summary_optimize(res):
         + (f"; local: only the {s['local_region_vertices']} vertices within {s['rings']} rings of the "
            f"cells not proven valid could move" if s.get("local") else ""),
     ] + ([f"surface           {s['turned_quads_before']} -> {s['turned_quads_after']} boundary quads turned over "
-          "(facing against their input normal: the surface folded there)"] if "turned_quads_after" in s else []) + [
+          "(facing against their input normal: the surface folded there)"
+          + (f"; {s['tilted_quads_before']} -> {s['tilted_quads_after']} of {s['boundary_quads']} tilted more than "
+             f"{TILT_DEGREES:g} degrees from it" if "tilted_quads_after" in s else "")]
+         if "turned_quads_after" in s else []) + [
         f"stages            untangle {st.get('untangle', 0):.2f} s ({s['untangle_iterations']} iterations), quality "
         f"{st.get('quality', 0):.2f} s ({s['quality_rounds']} rounds"
         + (f", the last {s['quality_rounds_undone']} undone: they ended below where they began"
