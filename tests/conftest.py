@@ -19,6 +19,15 @@ SHARED = os.path.normpath(os.path.join(os.path.dirname(__file__), "..", "..", "s
 BUNNY = os.path.join(SHARED, "bunny.vtk")
 
 
+def published(name):
+    """The path of a published mesh of ``../shared/data`` (``name`` relative to it), read in place and never copied;
+    skips the calling test when it is absent."""
+    path = os.path.join(SHARED, name)
+    if not os.path.exists(path):
+        pytest.skip(f"{path} is absent (published meshes are read in place, never copied)")
+    return path
+
+
 @pytest.fixture
 def bunny_path():
     if not os.path.exists(BUNNY):

@@ -296,11 +296,9 @@ def test_medit_files_are_read_at_float64_whatever_the_version_line(tmp_path):
 
 @pytest.mark.parametrize("name", ["cat_2.mesh", "Dolphin_2.mesh"])
 def test_published_medit_files_are_read_digit_for_digit(name):
-    from conftest import SHARED
+    from conftest import published
 
-    path = os.path.join(SHARED, "hexalab", name)
-    if not os.path.exists(path):
-        pytest.skip(f"{name} is not in the shared test data")
+    path = published(os.path.join("hexalab", name))
     with open(path) as fh:
         text = fh.read()
     assert np.array_equal(hs.read(path).points, _medit_text_vertices(text))

@@ -18,7 +18,6 @@ from hexsos_plugins.meshrepair.jointsteps import (DELTA_MAX, RATIO_SLACK, bernst
                                                  joint_steps, next_delta, sample_gradients)
 from hexsos_plugins.meshrepair.optimize import bernstein_coefficients
 
-SHARED = os.path.join(os.path.dirname(__file__), "..", "..", "shared", "data")
 
 
 def _certified(P, H):
@@ -153,7 +152,9 @@ def test_joint_steps_move_only_what_may_move():
 def _joint_stage(name):
     """The default repair of a published mesh (``../shared/data/hexalab/NAME``) and the minimum scaled Jacobian
     before and after its joint steps."""
-    m = hs.read(os.path.join(SHARED, "hexalab", name))
+    from conftest import published
+
+    m = hs.read(published(os.path.join("hexalab", name)))
     r = hs.repair(m.points, m.hexes)
     stages = [h["stage"] for h in r.history]
     assert r.success and "joint" in stages, stages
@@ -161,8 +162,6 @@ def _joint_stage(name):
     return r, r.history[j - 1]["min_sj"], r.history[j]["min_sj"]
 
 
-@pytest.mark.skipif(not os.path.exists(os.path.join(SHARED, "hexalab", "cat_2.mesh")),
-                    reason="../shared/data/hexalab/cat_2.mesh absent")
 def test_published_cat_2_joint_steps_lift_the_worst_cluster():
     """cat_2 (published): after the vertex steps its worst hexes, a cluster of eight around a feature corner, sit at
     0.66-0.68; the repair's joint steps take the certified minimum past 0.74."""
@@ -172,8 +171,6 @@ def test_published_cat_2_joint_steps_lift_the_worst_cluster():
     assert f"joint steps {r.stats['stage_seconds']['joint']:.2f} s ({r.stats['joint_steps']} kept)" in r.summary()
 
 
-@pytest.mark.skipif(not os.path.exists(os.path.join(SHARED, "hexalab", "kitten_with_bifur_3.mesh")),
-                    reason="../shared/data/hexalab/kitten_with_bifur_3.mesh absent")
 def test_published_kitten_joint_steps_pass_hexes_with_a_coefficient_near_zero():
     """kitten_with_bifur_3 (published, 34,880 hexes): next to its worst hexes sit hexes with a Bernstein coefficient
     of det J near 0 (5e-6 of their largest; of their split's, 0.006). The program holds it to first order; a step

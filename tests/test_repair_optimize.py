@@ -748,11 +748,9 @@ def test_published_rockarm_default_repair_beats_the_surface_cap():
     lifts it."""
     import os
 
-    from conftest import SHARED
+    from conftest import published
 
-    path = os.path.join(SHARED, "hexalab", "rockarm.vtk")
-    if not os.path.exists(path):
-        pytest.skip(f"{path} is absent (published meshes are read in place, never copied)")
+    path = published(os.path.join("hexalab", "rockarm.vtk"))
     mesh = hs.read(path)
     diag = np.linalg.norm(mesh.points.max(0) - mesh.points.min(0))
     r = hs.repair(mesh.points, mesh.hexes)
@@ -770,11 +768,9 @@ def test_published_dolphin_stress_test_untangles_against_smoothed_sizes():
     left a hex inverted (measured)."""
     import os
 
-    from conftest import SHARED
+    from conftest import published
 
-    path = os.path.join(SHARED, "hexalab", "Dolphin_2.mesh")
-    if not os.path.exists(path):
-        pytest.skip(f"{path} is absent (published meshes are read in place, never copied)")
+    path = published(os.path.join("hexalab", "Dolphin_2.mesh"))
     mesh = hs.read(path)
     P = stress(mesh.points, mesh.hexes, frac=1.0, amp=3.0, seed=1)
     r = hs.repair(P, mesh.hexes)

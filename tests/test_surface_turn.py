@@ -169,11 +169,9 @@ def test_published_kitten_stress_test_certified_with_its_surface_unfolded():
     its untangling slid boundary vertices until 93 of its boundary quads turned over in its first second, and one
     start (the same moved by 1e-12 of the diagonal) ended its 60 s with 15 hexes inverted; the others were certified
     with 133-169 quads turned over (the hexes valid, their surface folded through itself)."""
-    from conftest import SHARED
+    from conftest import published
 
-    path = os.path.join(SHARED, "hexalab", "kitten_with_bifur_3.mesh")
-    if not os.path.exists(path):
-        pytest.skip(f"{path} is absent (published meshes are read in place, never copied)")
+    path = published(os.path.join("hexalab", "kitten_with_bifur_3.mesh"))
     mesh = hs.read(path)
     P = stress(mesh.points, mesh.hexes, frac=1.0, amp=3.0, seed=1)
     r = hs.repair(P, mesh.hexes)
