@@ -53,6 +53,7 @@ import numpy as np
 
 from hexsos_plugins import check, repair
 from hexsos_plugins.examples import gmsh_mesh, gmsh_model, structured_grid
+from hexsos_plugins.meshrepair.boundary import TILT_DEGREES
 from hexsos_plugins.meshrepair.fidelity import boundary_fidelity, boundary_quads
 from hexsos_plugins.meshrepair import check_cells
 from hexsos_plugins.meshrepair.paper import boundary_vertex_mask, hex_edge_length
@@ -242,7 +243,7 @@ def _start_rows(starts, column, names=None, jobs=0, extra=()):
 
 
 #: The column of the boundary quads turned over (``stats["turned_quads_after"]``: the surface folded there)
-TURNED = ("boundary quads turned over (tilted more than 60 degrees)",
+TURNED = (f"boundary quads turned over (tilted more than {TILT_DEGREES:g} degrees)",
           lambda r, diag: f"{r.stats.get('turned_quads_after', 0):,} ({r.stats.get('tilted_quads_after', 0):,})")
 
 
@@ -381,7 +382,7 @@ def published(local=False, names=None, jobs=0):
     print("\n| mesh | hexes | not valid before -> after | certified | SJ before min / p1 / mean | SJ after min / p1 / "
           "mean | Hausdorff (of diag) | max move (of diag) | moved vertices (> 1% of diag) | shortest / longest edge "
           "of a hex, least (hexes < 0.05): before -> after | self-intersecting boundary quads: before -> after | "
-          "boundary quads turned over (tilted more than 60 degrees) | "
+          f"boundary quads turned over (tilted more than {TILT_DEGREES:g} degrees) | "
           "seconds: untangle / quality / vertex steps / joint steps / certify / total |")
     print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for r in rows:
