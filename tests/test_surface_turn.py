@@ -143,6 +143,26 @@ def test_turned_quads_counts_a_folded_surface_and_not_a_moved_one():
     assert bm0.turned_quads(np.zeros_like(P)).sum() == 0 and bm0.turned_quads(V).sum() == 0
 
 
+def test_boundary_terms_stay_finite_where_boundary_vertices_coincide():
+    """Boundary vertices at one point have boundary edges of length 0: the penalty's weight divided by their
+    square (1e-300 squared underflows to 0) was infinite, and stage 1's energy NaN. Their sizes are now floored
+    at a thousandth of the median of the others, and the others' sizes are left exactly as they were."""
+    P, H = _slab()
+    bm = boundary_model(P, [("hexahedron", H)])
+    free = np.ones(len(P), dtype=bool)
+    assert np.array_equal(bm.slide(P, free).s2, bm.size[bm.kind < 2] ** 2)  # nothing floored on a regular slab
+    W = P.copy()
+    W[[1, 2, 8]] = W[0]  # the corner vertex 0 and its three neighbours at one point: its edges have no length
+    bmw = boundary_model(W, [("hexahedron", H)])
+    assert (bmw.size == 0).any() and (bmw.quad_s2 > 0).all()
+    sl = bmw.slide(W, free)
+    assert np.isfinite(sl.s2).all() and (sl.s2 > 0).all()
+    assert sl.s2.min() == pytest.approx((1e-3 * np.median(bmw.size[bmw.size > 0])) ** 2)
+    prob = op.Problem(W + 0.01, [("hexahedron", H)], [np.ones(len(H))], free, slide=sl, surface=bmw.surface())
+    e, g = prob.untangle_energy(prob.x0(), 1e-3, None)
+    assert np.isfinite(e) and np.isfinite(g).all()
+
+
 def test_tilted_quads_counts_quads_standing_up_from_their_input_normal_and_not_those_sheared_a_little():
     """A top quad of the slab tilted by raising one of its edges: its vector area turns by atan(rise) from the input
     normal (+z); past 60 degrees it counts as tilted, not yet as turned; below 60 it does not count."""

@@ -199,7 +199,7 @@ class BoundaryModel:
         n, t = self.normal[keep], self.tangent[keep]
         Q = np.where((self.kind[keep] == 0)[:, None, None], n[:, :, None] * n[:, None, :],
                      np.eye(3)[None] - t[:, :, None] * t[:, None, :])
-        return Slide(idx=idx, Q=Q, ref=np.array(V[idx], dtype=np.float64), s2=np.maximum(self.size[keep], 1e-300) ** 2,
+        return Slide(idx=idx, Q=Q, ref=np.array(V[idx], dtype=np.float64), s2=_sized(self.size)[keep] ** 2,
                      frames=self.frames)
 
     def closest(self, V, idx=None) -> np.ndarray:
@@ -270,6 +270,14 @@ class BoundaryModel:
         if rows.size == 0:
             return np.zeros(0)
         return np.sqrt(self.nearest(V[rows], 0)[0])
+
+
+def _sized(size):
+    """Boundary edge lengths for the terms that divide by their square: each at least a thousandth of the median of
+    those not 0 (1 when all are). Where boundary vertices coincide, the size 0 (squared, 1e-300 underflows to 0)
+    made the boundary penalty's weight infinite and stage 1's energy NaN (every point of a mesh on one line)."""
+    pos = size[np.isfinite(size) & (size > 0)]
+    return np.maximum(size, 1e-3 * float(np.median(pos)) if pos.size else 1.0)
 
 
 def _igl():
@@ -386,7 +394,7 @@ def boundary_model(points, cells, *, feature_angle: float = 45.0, suspect=None, 
     qn = np.where(qbad[:, None], vn[quads].sum(axis=1), qn)
     qn = qn / np.maximum(np.linalg.norm(qn, axis=1, keepdims=True), 1e-300)
     size2 = np.zeros(N)
-    size2[verts] = size ** 2
+    size2[verts] = _sized(size) ** 2
     return BoundaryModel(vertices=verts, kind=kind, normal=normal, tangent=tangent, size=size,
                          surf_V=np.ascontiguousarray(P), surf_F=np.ascontiguousarray(tri),
                          feat_E=np.ascontiguousarray(feat), feature_edges=int(feat.shape[0]),
