@@ -28,7 +28,7 @@ from ..cells.elements import ELEMENTS
 from ..errors import DependencyError
 
 __all__ = ["boundary_faces", "interior_vertices", "BoundaryModel", "NearestPoints", "boundary_model", "Slide",
-           "quad_areas", "quad_corners", "TILT_DEGREES"]
+           "quad_areas", "quad_corners", "size_floor", "TILT_DEGREES"]
 
 #: A boundary quad whose vector area is more than this many degrees from its input normal counts as tilted
 #: (:meth:`BoundaryModel.tilted_quads`): the repair's report counts them beside the quads turned over
@@ -272,12 +272,20 @@ class BoundaryModel:
         return np.sqrt(self.nearest(V[rows], 0)[0])
 
 
+def size_floor(sizes) -> float:
+    """The least size the repair's energies divide by: a thousandth of the median of the finite positive values of
+    ``sizes`` (an array, or a list of arrays), 1 when there is none. Cells of coincident vertices have size 0."""
+    pos = np.concatenate([np.asarray(s, dtype=np.float64).ravel() for s in
+                          (sizes if isinstance(sizes, (list, tuple)) else [sizes])] + [np.zeros(0)])
+    pos = pos[np.isfinite(pos) & (pos > 0)]
+    return 1e-3 * float(np.median(pos)) if pos.size else 1.0
+
+
 def _sized(size):
-    """Boundary edge lengths for the terms that divide by their square: each at least a thousandth of the median of
-    those not 0 (1 when all are). Where boundary vertices coincide, the size 0 (squared, 1e-300 underflows to 0)
-    made the boundary penalty's weight infinite and stage 1's energy NaN (every point of a mesh on one line)."""
-    pos = size[np.isfinite(size) & (size > 0)]
-    return np.maximum(size, 1e-3 * float(np.median(pos)) if pos.size else 1.0)
+    """Boundary edge lengths for the terms that divide by their square, each at least :func:`size_floor`. Where
+    boundary vertices coincide, the size 0 (squared, 1e-300 underflows to 0) made the boundary penalty's weight
+    infinite and stage 1's energy NaN (every point of a mesh on one line)."""
+    return np.maximum(size, size_floor(size))
 
 
 def _igl():

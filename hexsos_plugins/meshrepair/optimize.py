@@ -74,7 +74,7 @@ import numpy as np
 
 from ..cells.elements import ELEMENTS
 from ..cells.quality import IDEAL, SAMPLES, hex_edge_ratio
-from .boundary import quad_corners
+from .boundary import quad_corners, size_floor
 
 __all__ = ["Problem", "untangle", "improve", "recovers_in_time", "hex_bernstein_samples", "bernstein_matrix",
            "bernstein_split_matrix", "det3", "cof3", "bernstein_coefficients", "bernstein_vertex_gradient", "SPLIT_BELOW"]
@@ -259,9 +259,7 @@ class Problem:
         self.blocks = []
         # a cell of coincident vertices has size 0, and the energies divide by its size: every size at least a
         # thousandth of the median size of the mesh's cells (1 when none has a size)
-        pos = np.concatenate([np.asarray(s, dtype=np.float64).ravel() for s in sizes] + [np.zeros(0)])
-        pos = pos[np.isfinite(pos) & (pos > 0)]
-        floor = 1e-3 * float(np.median(pos)) if pos.size else 1.0
+        floor = size_floor(list(sizes))
         sizes = [np.where(np.asarray(s, dtype=np.float64) >= floor, s, floor) for s in sizes]
         for (name, conn), s in zip(blocks, sizes):
             rows = np.flatnonzero(self.free_mask[conn].any(axis=1))
