@@ -373,7 +373,7 @@ def published(local=False, names=None, jobs=0):
         row = _row(name, m.points, m.hexes, [], res.points, m.hexes, t, res.success)
         row.update(stage_seconds=res.stats["stage_seconds"], moved=res.stats["moved_vertices"],
                    points=int(len(m.points)), moved_over_1pct=res.stats["moved_over_1pct"], load=os.getloadavg()[0],
-                   turned=res.stats.get("turned_quads_after", 0), tilted=res.stats.get("tilted_quads_after", 0))
+                   surface=TURNED[1](res, None))
         rows.append(row)
         print(f"  {name}: {t:.1f} s, certified {res.success}, min SJ {row['sj_after']['min']:.3f}, load "
               f"{row['load']:.1f}", file=sys.stderr, flush=True)
@@ -382,7 +382,7 @@ def published(local=False, names=None, jobs=0):
     print("\n| mesh | hexes | not valid before -> after | certified | SJ before min / p1 / mean | SJ after min / p1 / "
           "mean | Hausdorff (of diag) | max move (of diag) | moved vertices (> 1% of diag) | shortest / longest edge "
           "of a hex, least (hexes < 0.05): before -> after | self-intersecting boundary quads: before -> after | "
-          f"boundary quads turned over (tilted more than {TILT_DEGREES:g} degrees) | "
+          f"{TURNED[0]} | "
           "seconds: untangle / quality / vertex steps / joint steps / certify / total |")
     print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for r in rows:
@@ -391,7 +391,7 @@ def published(local=False, names=None, jobs=0):
         x = "n/a" if r["self_intersecting"] is None else "{:,} -> {:,}".format(*r["self_intersecting"])
         print(f"| {r['mesh']} | {r['hexes']:,} | {_fmt(r).rsplit(' | ', 1)[0]} | {r['moved']:,} of {r['points']:,} "
               f"({r['moved_over_1pct']:,}) | {a0:.4f} ({n0:,}) -> {a1:.4f} ({n1:,}) | {x} | "
-              f"{r['turned']:,} ({r['tilted']:,}) | {parts} / "
+              f"{r['surface']} | {parts} / "
               f"{r['seconds']:.1f} |")
     return rows
 
