@@ -137,6 +137,20 @@ def _left_handed_fixed(d):
     return _left_handed(d, True)
 
 
+def _mirrored_block(d, fix=False):
+    P, H = structured_grid(2)
+    H = H.copy()
+    half = P[H[:, 0], 0] == P[:, 0].min()  # the 4 hexes of the lower half in x, written mirrored
+    H[half] = H[half][:, [0, 3, 2, 1, 4, 7, 6, 5]]
+    p = os.path.join(d, "mirrored-block.vtu")
+    _write(p, P, [("hexahedron", H)])
+    return p, (["--fix-orientation"] if fix else [])
+
+
+def _mirrored_block_fixed(d):
+    return _mirrored_block(d, True)
+
+
 def _voxels(d):
     P, H = structured_grid(2)
     voxel = H[:, [0, 1, 3, 2, 4, 5, 7, 6]]  # VTK_VOXEL order: x fastest
@@ -213,6 +227,9 @@ CASES = [
     ("flat hex", "all 8 nodes in a plane: det J = 0 everywhere", _flat, 1, None, {"undecided": 1, "flat": 1}),
     ("left-handed file", "every hex in the mirrored node order", _left_handed, 2, "left-handed", None),
     ("left-handed, --fix-orientation", "the same, flipped on request", _left_handed_fixed, 0, None, {"valid": 8}),
+    ("mirrored block", "4 of 8 hexes in the mirrored node order", _mirrored_block, 2, "partly mirrored", None),
+    ("mirrored block, --fix-orientation", "the same, flipped on request", _mirrored_block_fixed, 0, None,
+     {"valid": 8}),
     ("VTK voxels", "cell type 11 (x-fastest node order)", _voxels, 0, None, {"valid": 8}),
     ("mixed mesh", "hexes with a tet, a pyramid and quads", _mixed, 0, None, {"cells": 10, "hexes": 8, "valid": 10}),
     ("unreferenced points", "points no cell uses (one at 1e30)", _unreferenced, 0, None, {"valid": 8}),

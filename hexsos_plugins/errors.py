@@ -50,7 +50,8 @@ class InvalidInputError(HexsosError, ValueError):
 
 
 class LeftHandedMeshError(HexsosError, ValueError):
-    """Every hex of the mesh is negatively oriented: the file uses the mirrored node order."""
+    """Cells of the mesh are written in the mirrored node order: every cell of a type negatively oriented (a
+    left-handed file), or a block or part whose faces meet their neighbours' the wrong way round."""
 
 
 class MeshWriteError(HexsosError, OSError):

@@ -191,6 +191,29 @@ def test_left_handed_file_is_named_and_can_be_fixed(tmp_path, capsys):
     assert "left-handed" in err and "--fix-orientation" in err and len(err.strip().splitlines()) == 1
     assert cli.main(["check", str(path), "--fix-orientation"]) == 0
     assert "valid      8 (100.00%)" in capsys.readouterr().out
+    # the repair flips them too, says so and writes the file in the right-handed order
+    out = tmp_path / "fixed.vtu"
+    assert cli.main(["repair", str(path), "-o", str(out), "--fix-orientation", "--no-fidelity"]) == 0
+    assert "orientation: left-handed (hexahedron), flipped (--fix-orientation)" in capsys.readouterr().out
+    assert np.array_equal(meshio.read(out).cells_dict["hexahedron"], H)
+
+
+def test_a_mirrored_block_beside_a_right_handed_one_is_named_and_can_be_fixed(tmp_path, capsys):
+    P, H = structured_grid(2)
+    half = P[H[:, 0], 0] == P[:, 0].min()
+    some = H.copy()
+    some[half] = some[half][:, [0, 3, 2, 1, 4, 7, 6, 5]]
+    path = tmp_path / "half.vtu"
+    meshio.write(path, meshio.Mesh(P, [("hexahedron", some)]))
+    assert cli.main(["check", str(path)]) == 2
+    err = capsys.readouterr().err
+    rows = ", ".join(map(str, np.flatnonzero(half)))
+    assert f"partly mirrored: 4 of the 8 hexahedron cells (cells {rows})" in err and "--fix-orientation" in err
+    assert cli.main(["check", str(path), "--fix-orientation", "--json"]) == 0
+    d = json.loads(capsys.readouterr().out)
+    assert d["valid"] == 8 and d["orientation"] == "mirrored (4 hexahedron cells) (flipped)"
+    # the input is never modified
+    assert np.array_equal(meshio.read(path).cells_dict["hexahedron"], some)
 
 
 @pytest.mark.parametrize("content,name,match", [

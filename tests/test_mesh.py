@@ -466,3 +466,43 @@ def test_orientation_and_flip_per_type():
     assert [a.tolist() for a in out.cell_data["x"]] == [[1.0], [2.0]]
     with pytest.raises(InvalidInputError, match="M = 2"):
         m.to_meshio(cell_data={"x": np.zeros(3)})
+
+
+def test_mirrored_cells_are_found_by_the_faces_they_share_not_by_their_sign():
+    pts, hexes = grid(4)
+    assert not HexMesh.from_arrays(pts, hexes).mirrored_cells().any()
+    # a block of 32 hexes written mirrored, glued to a right-handed one: exactly those, and flipping them mends
+    half = pts[hexes[:, 0], 0] < 2
+    some = hexes.copy()
+    some[half] = some[half][:, FLIP]
+    m = HexMesh.from_arrays(pts, some)
+    assert m.orientation() == "mixed" and np.array_equal(m.mirrored_cells(), half)
+    fixed = m.flipped(cells=m.mirrored_cells())
+    assert np.array_equal(fixed.hexes, hexes) and np.array_equal(m.hexes, some)
+    assert fixed.orientation() == "right-handed" and not fixed.mirrored_cells().any()
+    # one cell written the wrong way round
+    one = hexes.copy()
+    one[21] = one[21, FLIP]
+    assert np.flatnonzero(HexMesh.from_arrays(pts, one).mirrored_cells()).tolist() == [21]
+    # a slab of cells inverted by their nodes' positions (12 negative at the centre) is not mirrored
+    tangled = pts.copy()
+    inner = (pts[:, 2] == 2) & (pts[:, :2] > 0).all(axis=1) & (pts[:, :2] < 4).all(axis=1)
+    tangled[inner, 2] = -0.5
+    t = HexMesh.from_arrays(tangled, hexes)
+    assert (t.centre_det() < 0).sum() == 12 and not t.mirrored_cells().any()
+    # nor is an inverted hex that shares no face, in a block with positive ones (it could be either)
+    alone = np.vstack([pts[hexes[0]], tangled[hexes][t.centre_det() < 0][0]])
+    assert not HexMesh.from_arrays(alone, np.arange(16).reshape(2, 8)).mirrored_cells().any()
+    # a block negative throughout, glued to nothing, is: the second of two blocks
+    far = pts + [10.0, 0.0, 0.0]
+    two = HexMesh.from_cells(np.vstack([pts, far]), [("hexahedron", hexes), ("hexahedron", hexes[:, FLIP] + len(pts))])
+    assert np.flatnonzero(two.mirrored_cells()).tolist() == list(range(64, 128))
+    # other types by their own faces: a tet mirrored beside a right-handed one (they share face 1-2-3)
+    tp = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1], [1, 1, 1]], float)
+    tets = np.array([[0, 1, 2, 3], [1, 2, 3, 4]])
+    assert not HexMesh.from_cells(tp, [("tetra", tets)]).mirrored_cells().any()
+    bad = tets.copy()
+    bad[1] = bad[1][MIRROR["tetra"]]
+    assert HexMesh.from_cells(tp, [("tetra", bad)]).mirrored_cells().tolist() == [False, True]
+    with pytest.raises(InvalidInputError, match="bool array of shape"):
+        m.flipped(cells=np.ones(3, dtype=bool))

@@ -55,7 +55,7 @@ def test_scales_give_the_same_verdicts(tmp_path):
         assert np.allclose(r.min_det, ref.min_det * s**3, rtol=1e-9, atol=1e-12 * s**3)
 
 
-@pytest.mark.parametrize("case", [c for c in CASES if c[3] == 2 and c[0] != "left-handed file"],
+@pytest.mark.parametrize("case", [c for c in CASES if c[3] == 2 and c[0] not in ("left-handed file", "mirrored block")],
                          ids=lambda c: c[0])
 def test_api_raises_typed_errors(case, tmp_path):
     path, _ = case[2](str(tmp_path))
@@ -71,6 +71,12 @@ def test_api_reports_left_handed_files_and_flips_only_on_request(tmp_path):
     assert mesh.orientation() == "left-handed"
     assert (hs.check(mesh.points, mesh.hexes).status == 0).all()  # read never flips by itself
     assert (hs.check(mesh.flipped().points, mesh.flipped().hexes).status == 1).all()
+    path, _ = CASES[[c[0] for c in CASES].index("mirrored block")][2](str(tmp_path))
+    mesh = hs.read(path)
+    assert mesh.orientation() == "mixed" and mesh.mirrored_cells().sum() == 4
+    assert (hs.check(mesh.points, mesh.hexes).status == 0).sum() == 4
+    fixed = mesh.flipped(cells=mesh.mirrored_cells())
+    assert (hs.check(fixed.points, fixed.hexes).status == 1).all()
 
 
 # ------------------------------------------------------------------------------ inputs are never modified

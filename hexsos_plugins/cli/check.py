@@ -53,7 +53,7 @@ def _cmd_check(args) -> int:
     if args.json:
         d = result.to_dict()
         d["file"] = args.mesh
-        d["orientation"] = orient + (" (flipped)" if orient.startswith("left-handed") else "")
+        d["orientation"] = orient + (" (flipped)" if orient.startswith(("left-handed", "mirrored")) else "")
         d["not_checked"] = dict(getattr(mesh, "skipped", {}) or {})
         if args.output:
             d["output"] = args.output
@@ -62,8 +62,8 @@ def _cmd_check(args) -> int:
         print(json.dumps(d))
     else:
         print(_header(args.mesh, mesh))
-        if orient.startswith("left-handed"):
-            print(f"orientation: {orient} file, flipped (--fix-orientation)")
+        if orient.startswith(("left-handed", "mirrored")):
+            print(f"orientation: {orient}, flipped (--fix-orientation)")
         print(result.summary())
         for path in ([args.output] if args.output else []) + pictures:
             print(f"wrote {path}")
@@ -170,8 +170,9 @@ def add_parsers(sub) -> None:
     p.add_argument("-o", "--output", metavar="OUT", help="write the mesh with the result arrays added")
     p.add_argument("--json", action="store_true", help="print one JSON object instead of the summary")
     p.add_argument("--fix-orientation", action="store_true",
-                   help="flip the cells of a type whose cells are all negatively oriented (a file that mirrors "
-                        "that type's node order) before checking")
+                   help="flip the cells written in the mirrored node order before checking: a type whose cells are "
+                        "all negatively oriented (a file that mirrors that type's node order), a block or part "
+                        "whose faces meet their neighbours' the mirrored way round")
     p.add_argument("--screenshot", metavar="PNG",
                    help="render the mesh coloured by min det J, invalid hexes highlighted, argmin points as spheres")
     p.add_argument("--histogram", metavar="PNG", help="plot the histogram of min det J per hex")
@@ -185,7 +186,8 @@ def add_parsers(sub) -> None:
     p.add_argument("input", metavar="IN", help="the mesh to read (any format meshio reads, plus tolerant variants)")
     p.add_argument("output", metavar="OUT", help="the mesh to write (.vtu .vtk .msh .mesh ...)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
-    p.add_argument("--fix-orientation", action="store_true", help="flip the hexes of a left-handed file")
+    p.add_argument("--fix-orientation", action="store_true",
+                   help="flip the cells written in the mirrored node order (see check)")
     add_check_options(p)
     p.set_defaults(func=_cmd_convert)
 

@@ -101,21 +101,45 @@ def announce_compilation(args) -> bool:
 
 
 def read_mesh(path, fix_orientation: bool):
-    """Read ``path``; a cell type whose cells are *all* negatively oriented (the file mirrors that type's node
-    order) is an error naming it, unless ``fix_orientation``, which flips exactly those types. Returns
-    ``(mesh, orientation)`` with orientation ``"right-handed"``, ``"mixed"`` or ``"left-handed (TYPES)"``."""
+    """Read ``path``; cells written in the mirrored node order are an error naming them, unless
+    ``fix_orientation``, which flips exactly those. Mirrored: every cell of a type negatively oriented (the file
+    mirrors that type's node order), or the cells that :meth:`~hexsos_plugins.io.mesh.Mesh.mirrored_cells` finds
+    by the faces they share and by blocks (a mirrored region beside a right-handed one, a block written mirrored). Returns ``(mesh,
+    orientation)`` with orientation ``"right-handed"``, ``"mixed"``, ``"left-handed (TYPES)"`` or ``"mirrored
+    (COUNTS)"``; the last two are flipped."""
+    import numpy as np
+
+    from ..cells.elements import CELL_TYPES
     from ..errors import LeftHandedMeshError
     from ..io import read
 
     mesh = read(path)
-    overall, per_type = mesh.orientation_and_types()
+    det = mesh.centre_det()  # one pass for both
+    overall, per_type = mesh.orientation_and_types(det)
     left = [t for t, o in per_type.items() if o == "left-handed"]
-    if not left:
+    mirrored = mesh.mirrored_cells(det)
+    for t in left:
+        mirrored[mesh.cell_types == CELL_TYPES.index(t)] = False
+    if not left and not mirrored.any():
         return mesh, overall
     counts = mesh.counts_by_type()
-    what = ", ".join(f"all {counts[t]} {t} cells" for t in left)
+    some = {t: int(np.count_nonzero(mirrored[mesh.cell_types == CELL_TYPES.index(t)])) for t in counts}
+    some = {t: k for t, k in some.items() if k}
+    said = []
+    if left:
+        said.append(", ".join(f"all {counts[t]} {t} cells" for t in left) + " are negatively oriented (det J < 0 at "
+                    "their centres; the file uses the mirrored node order)")
+    if some:
+        rows = np.flatnonzero(mirrored)
+        shown = ", ".join(map(str, rows[:5])) + (", ..." if len(rows) > 5 else "")
+        said.append(" and ".join(f"{k} of the {counts[t]} {t} cells" for t, k in some.items())
+                    + f" (cells {shown}) are written in the mirrored node order: det J < 0 at their centres, and "
+                    "their faces meet their neighbours' the wrong way round or their block is negative throughout)")
     if not fix_orientation:
-        raise LeftHandedMeshError(
-            f"{path} is left-handed: {what} are negatively oriented (det J < 0 at their centres; the file uses "
-            "the mirrored node order). Pass --fix-orientation to flip them")
-    return mesh.flipped(cell_types=left), f"left-handed ({', '.join(left)})"
+        raise LeftHandedMeshError(f"{path} is {'partly mirrored' if some else 'left-handed'}: {'; '.join(said)}. "
+                                  "Pass --fix-orientation to flip them")
+    flipped = mesh.flipped(cell_types=left or None, cells=mirrored)
+    if not some:
+        return flipped, f"left-handed ({', '.join(left)})"
+    which = [f"all {t}" for t in left] + [f"{k} {t}" for t, k in some.items()]
+    return flipped, f"mirrored ({', '.join(which)} cells)"

@@ -85,7 +85,8 @@ def add_parser(subparsers):
                                                  "min scaled Jacobian per step) as a PNG (needs matplotlib)")
     p.add_argument("--histogram", metavar="PNG", help="write the scaled Jacobian histogram before / after as a PNG")
     p.add_argument("--fix-orientation", action="store_true",
-                   help="flip the hexes of a left-handed file (all hexes negatively oriented) first")
+                   help="flip the cells written in the mirrored node order first (a left-handed file, or a block or part of "
+                        "it: see hexsos check)")
     p.add_argument("--no-fidelity", dest="fidelity", action="store_false",
                    help="skip the boundary fidelity (Hausdorff distance with pymeshlab)")
     add_run_options(p)  # --jobs, --scheduler (the kernel calls), --progress
@@ -302,7 +303,7 @@ def _finish(args, mesh, orient, result, bar, cells) -> int:
     stats.update({
         "file": args.mesh,
         "output": args.output,
-        "orientation": orient + (" (flipped)" if orient == "left-handed" else ""),
+        "orientation": orient + (" (flipped)" if orient.startswith(("left-handed", "mirrored")) else ""),
         "hausdorff": None if fidelity is None else fidelity["hausdorff_max"],
         "hausdorff_relative": None if fidelity is None else fidelity["hausdorff_max_relative"],
         "fidelity": fidelity,
@@ -326,8 +327,8 @@ def _finish(args, mesh, orient, result, bar, cells) -> int:
         else:
             print(f"{args.mesh}: {mesh.hexes.shape[0]} hexahedra" + (f", {n_other} other 3-D cells" if n_other else "")
                   + f", {mesh.points.shape[0]} points")
-        if orient == "left-handed":
-            print("orientation: left-handed file, hexes flipped (--fix-orientation)")
+        if orient.startswith(("left-handed", "mirrored")):
+            print(f"orientation: {orient}, flipped (--fix-orientation)")
         print(result.summary())
         if fidelity is not None:
             haus = (f"Hausdorff {fidelity['hausdorff_note']}" if fidelity["hausdorff_max"] is None else

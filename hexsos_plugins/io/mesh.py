@@ -529,9 +529,10 @@ class Mesh:
         """
         return self._handedness(self.centre_det())
 
-    def orientation_and_types(self) -> tuple:
-        """``(orientation(), orientations())`` from one pass over the cells (the pass is most of their time)."""
-        d = self.centre_det()
+    def orientation_and_types(self, det=None) -> tuple:
+        """``(orientation(), orientations())`` from one pass over the cells (the pass is most of their time), or
+        from ``det``, :meth:`centre_det`'s values when the caller has them already."""
+        d = self.centre_det() if det is None else np.asarray(det, dtype=np.float64)
         types = self.cell_types
         per_type = {t: self._handedness(d[types == CELL_TYPES.index(t)]) for t in self.counts_by_type()}
         return self._handedness(d), per_type
@@ -546,6 +547,96 @@ class Mesh:
     def left_handed_types(self) -> list:
         """The cell types all of whose cells are negatively oriented (see :meth:`orientations`)."""
         return [t for t, o in self.orientations().items() if o == "left-handed"]
+
+    def mirrored_cells(self, det=None) -> np.ndarray:
+        """(n_cells,) bool: the cells written in the mirrored node order, told apart from inverted cells by the
+        mesh's topology and blocks.
+
+        Two cells that share a corner face see it in opposite directions when both are written in the same
+        handedness (each face of :attr:`Element.faces` is outward for a positive cell), in the same direction
+        when one of them is mirrored. Those relations split every face-connected part of the mesh into at most
+        two classes of equal handedness. A class is mirrored when det J is negative at the centre of some of
+        its cells and positive at none (:meth:`centre_det`) while the other class of its part has a cell
+        positive there: a mirrored block glued to a right-handed one, a single cell written the wrong way
+        round. So is every cell of a block (of the file's cell blocks) negative at some centres and positive at
+        none: a block written mirrored, glued to nothing. An inverted cell of a tangled mesh stays in its
+        neighbours' class and is not marked; nor is a part of its own inside a block (a hex that shares no face
+        could be inverted as well as mirrored). Faces shared by more than two cells are ignored; a part whose
+        relations contradict each other (no consistent handedness exists) has none of its cells marked by them.
+        The parts are those of the cells negative at their centres and their neighbours: only faces whose nodes
+        all belong to such cells are read, so a mesh with none costs one pass of :meth:`centre_det`.
+
+        Parameters
+        ----------
+        det : array (n_cells,), optional
+            :meth:`centre_det`'s values, when the caller has them already.
+        """
+        n = self.n_cells
+        d = self.centre_det() if det is None else np.asarray(det, dtype=np.float64)
+        if d.shape != (n,):
+            raise InvalidInputError(f"det: expected one value per cell, shape ({n},), found shape {d.shape}")
+        out = np.zeros(n, dtype=bool)
+        if not (d < 0).any():
+            return out
+        from scipy.sparse import coo_matrix
+        from scipy.sparse.csgraph import connected_components
+
+        # only the faces whose nodes all belong to cells negative at their centres can matter
+        near = np.zeros(len(self.points), dtype=bool)
+        start = 0
+        for _, _, conn in self._blocks:
+            near[conn[d[start:start + len(conn)] < 0].ravel()] = True
+            start += len(conn)
+        pairs = [np.zeros((0, 2), dtype=np.int64)]
+        flips = [np.zeros(0, dtype=bool)]
+        for k in (3, 4):
+            rows, owner, start = [], [], 0
+            for _, t, conn in self._blocks:
+                for f in ELEMENTS[t].faces:
+                    if len(f) == k:
+                        faces = conn[:, list(f)]
+                        keep = near[faces].all(axis=1)
+                        rows.append(faces[keep])
+                        owner.append(start + np.flatnonzero(keep))
+                start += len(conn)
+            if not rows:
+                continue
+            faces, owner = np.concatenate(rows), np.concatenate(owner)
+            key = np.sort(faces, axis=1)
+            order = np.lexsort(key.T[::-1])
+            sk = key[order]
+            differs = np.concatenate([[True], (sk[1:] != sk[:-1]).any(axis=1), [True]])
+            starts = np.flatnonzero(differs)
+            lengths = np.diff(starts)
+            two = starts[:-1][lengths == 2]
+            a, b = order[two], order[two + 1]
+            # a face's direction: the corner after its least corner (the same face read the same way round)
+            first = np.argmin(faces, axis=1)
+            succ = faces[np.arange(len(faces)), (first + 1) % k]
+            pairs.append(np.stack([owner[a], owner[b]], axis=1))
+            flips.append(succ[a] == succ[b])
+        P, F = np.concatenate(pairs), np.concatenate(flips)
+        cell, local = np.unique(P, return_inverse=True)  # the cells the shared faces join, numbered 0..c-1
+        local = local.reshape(P.shape)
+        c = len(cell)
+        if c:
+            # every such cell twice, (i, same) and (i, mirrored); a shared face joins equal or opposite handedness
+            i, j = local[:, 0], local[:, 1]
+            src = np.concatenate([i, i + c])
+            dst = np.concatenate([np.where(F, j + c, j), np.where(F, j, j + c)])
+            graph = coo_matrix((np.ones(len(src), dtype=np.int8), (src, dst)), shape=(2 * c, 2 * c))
+            _, labels = connected_components(graph, directed=False)
+            same, other = labels[:c], labels[c:]
+            m = int(labels.max()) + 1
+            dc = d[cell]
+            negative = np.bincount(same, weights=(dc < 0), minlength=m) > 0
+            positive = np.bincount(same, weights=(dc > 0), minlength=m) > 0
+            out[cell] = (same != other) & negative[same] & ~positive[same] & positive[other]
+        for _, _, start, end in self.cell_blocks:
+            block = d[start:end]
+            if (block < 0).any() and not (block > 0).any():
+                out[start:end] = True
+        return out
 
     def _source_with(self, conns, points=None) -> meshio.Mesh:
         """Copy of source with every checked block's data taken from ``conns`` (VTK order; voxels back in voxel
@@ -567,7 +658,7 @@ class Mesh:
         return Mesh(self.points.copy() if points is None else points, source, blocks, path=self.path,
                     file_format=self.file_format, skipped=self._skipped, reader=self.reader)
 
-    def flipped(self, cell_types=None) -> "Mesh":
+    def flipped(self, cell_types=None, cells=None) -> "Mesh":
         """A copy with cells mirrored (:data:`MIRROR`: r and s exchanged; for hexahedra nodes 1<->3 and 5<->7):
         left-handed becomes right-handed.
 
@@ -575,6 +666,9 @@ class Mesh:
         ----------
         cell_types : iterable of str, optional
             Mirror only the cells of these types (e.g. ``mesh.left_handed_types()``); default: every cell.
+        cells : array of bool (n_cells,), optional
+            Mirror only these cells (e.g. ``mesh.mirrored_cells()``); with ``cell_types``, the cells of those
+            types and these.
 
         The copy's ``source`` has those blocks flipped too (voxel blocks in voxel order), so writing it gives a
         file with the corrected node order. ``self`` is not modified.
@@ -585,8 +679,23 @@ class Mesh:
             if unknown:
                 raise InvalidInputError(f"cell_types: expected names among {', '.join(CELL_TYPES)}, found "
                                         f"{', '.join(sorted(map(str, unknown)))}")
-        conns = [np.ascontiguousarray(c[:, MIRROR[t]]) if cell_types is None or t in cell_types else c.copy()
-                 for _, t, c in self._blocks]
+        if cells is None:
+            mask = np.isin(self.cell_types, [CELL_TYPES.index(t) for t in cell_types]) \
+                if cell_types is not None else np.ones(self.n_cells, dtype=bool)
+        else:
+            mask = np.asarray(cells)
+            if mask.dtype != bool or mask.shape != (self.n_cells,):
+                raise InvalidInputError(f"cells: expected a bool array of shape ({self.n_cells},) (one per cell), "
+                                        f"found dtype {mask.dtype} and shape {mask.shape}")
+            if cell_types is not None:
+                mask = mask | np.isin(self.cell_types, [CELL_TYPES.index(t) for t in cell_types])
+        conns, start = [], 0
+        for _, t, c in self._blocks:
+            rows = mask[start:start + len(c)]
+            start += len(c)
+            c = c.copy()
+            c[rows] = c[rows][:, MIRROR[t]]
+            conns.append(np.ascontiguousarray(c))
         return self._replace(conns, source=self._source_with(conns))
 
     def with_points(self, points) -> "Mesh":
