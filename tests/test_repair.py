@@ -337,6 +337,34 @@ def test_cli_repair_of_a_mesh_with_every_point_coincident_ends_without_a_crash(t
     assert out.exists()
 
 
+def test_cli_repair_warns_when_the_boundary_ends_far_from_the_input(tmp_path, capsys):
+    """A flat input (every point in one plane) is certified only by inflating it: the boundary ends many
+    diagonals away, and the run says so; a repair that moves one interior vertex does not."""
+    from hexsos_plugins.cli import main
+    from hexsos_plugins.meshrepair.fidelity import FAR_FRACTION
+
+    pytest.importorskip("pymeshlab")
+    P, H = structured_grid(2)
+    flat, out = tmp_path / "flat.vtu", tmp_path / "out.vtu"
+    meshio.write(str(flat), meshio.Mesh(P * [1.0, 1.0, 0.0], [("hexahedron", H)]))
+    assert main(["repair", str(flat), "-o", str(out), "--json"]) == 0
+    got = capsys.readouterr()
+    d = json.loads(got.out)
+    assert d["hausdorff_relative"] > 1.0
+    far = [w for w in d["warnings"] if "from the input's (Hausdorff), more than 2%" in w]
+    assert len(far) == 1 and f"{100 * d['hausdorff_relative']:.4g}%" in far[0]
+    assert main(["repair", str(flat), "-o", str(out)]) == 0
+    assert "hexsos: warning: the boundary ended" in capsys.readouterr().err
+    near = P.copy()
+    near[13] += 0.7  # the centre vertex of the 2^3 grid, through a face of its hexes
+    src = tmp_path / "near.vtu"
+    meshio.write(str(src), meshio.Mesh(near, [("hexahedron", H)]))
+    assert main(["repair", str(src), "-o", str(out), "--json"]) == 0
+    d = json.loads(capsys.readouterr().out)
+    assert d["invalid_before"] > 0 and d["hausdorff_relative"] < FAR_FRACTION
+    assert not any("more than 2%" in w for w in d["warnings"])
+
+
 def test_fidelity_without_pymeshlab_names_the_extra(monkeypatch):
     import sys
 

@@ -256,14 +256,18 @@ def _finish(args, mesh, orient, result, bar, cells) -> int:
     bar.close()
 
     curved = result.stats.get("method") == "curved"
-    fidelity, fidelity_note = None, None
+    fidelity, fidelity_note, far = None, None, None
     if args.fidelity and not curved:
-        from ..meshrepair.fidelity import boundary_fidelity
+        from ..meshrepair.fidelity import FAR_FRACTION, boundary_fidelity
 
         try:
             fidelity = boundary_fidelity(mesh.points, result.points, mesh.hexes, cells=cells)
         except DependencyError as exc:
             fidelity_note = str(exc)
+        if fidelity is not None and (fidelity["hausdorff_max_relative"] or 0.0) > FAR_FRACTION:
+            far = (f"the boundary ended {100 * fidelity['hausdorff_max_relative']:.4g}% of the bounding-box diagonal "
+                   f"from the input's (Hausdorff), more than {100 * FAR_FRACTION:g}%: the repaired mesh's shape "
+                   "differs visibly from the input's there (point data hexsos_displacement shows where)")
 
     cell_data = dict(result.check.cell_data())
     cell_data["hexsos_scaled_jacobian"] = scaled_jacobian(result.points, mesh.cells if curved else mesh.hexes)
@@ -311,6 +315,8 @@ def _finish(args, mesh, orient, result, bar, cells) -> int:
         "history": result.history,
         "warnings": warnings + ([fidelity_note] if fidelity_note else []),
     })
+    if far:
+        stats["warnings"].append(far)
     if not target_ok:
         stats["warnings"].append(f"the target --min-sj {stats['min_sj_target']:g} was not reached (min scaled "
                                  f"Jacobian {stats['min_sj_after']:.4f})")

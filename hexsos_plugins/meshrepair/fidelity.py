@@ -21,9 +21,11 @@ import numpy as np
 from ..errors import DependencyError, InvalidInputError
 from ..cells.elements import HEX_FACES
 
-__all__ = ["boundary_fidelity", "boundary_quads", "surface_area"]
+__all__ = ["boundary_fidelity", "boundary_quads", "surface_area", "FAR_FRACTION"]
 
-
+#: A repaired boundary whose Hausdorff distance to the input's is more than this fraction of the input
+#: boundary's bounding-box diagonal is far from it: ``hexsos repair`` says so in a warning
+FAR_FRACTION = 0.02
 
 def _pymeshlab():
     try:
