@@ -438,6 +438,9 @@ def test_cli_repair_not_successful_exit_1_and_output_written(tmp_path, capsys):
     rc = main(["repair", str(src), "-o", str(out), "--max-iter", "2", "--no-fidelity", "--boundary", "fixed"])
     text = capsys.readouterr().out
     assert rc == 1 and out.exists() and "NOT every cell proven valid" in text
+    # one count of cells for one mesh: the untangling's stricter test is said to be stricter, on the mesh returned
+    assert "1 hex not proven valid (hexes 0)" in text
+    assert "its own test, stricter than the certificate" in text and "fails on 1 cell of the mesh returned" in text
     # the input as output is refused
     rc = main(["repair", str(src), "-o", str(src)])
     assert rc == 2 and "input" in capsys.readouterr().err

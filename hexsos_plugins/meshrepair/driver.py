@@ -1156,8 +1156,9 @@ class _Optimize:
             if not untangled:
                 nb = _bad_count(opt.Problem(V, blocks, sizes, np.ones(N, dtype=bool)).bad_cells(V))
                 if nb:
-                    why.append(f"the untangling ended with {nb} cell{'s' * (nb != 1)} still inverted at a corner or "
-                               f"with a Bernstein coefficient <= 0")
+                    why.append(f"the untangling did not finish: its own test, stricter than the certificate (no "
+                               f"corner inverted, every Bernstein coefficient of det J > 0), fails on {nb} "
+                               f"cell{'s' * (nb != 1)} of the mesh returned")
             message = "; ".join(parts) + (" (" + "; ".join(why) + ")" if why else "") + \
                 "; the best mesh seen is returned"
         stats = {
