@@ -20,9 +20,10 @@ import time
 import numpy as np
 
 from ..cells.hexahedron import EDGES
-from ..cells.quality import SAMPLES, SHORT_EDGE_RATIO
+from ..cells.quality import SAMPLES, SHORT_EDGE_RATIO, hex_edge_ratio
 
-__all__ = ["local_sweeps", "local_untangle", "vertex_freedoms", "band_limits", "BAND_BELOW", "RATIO_FLOOR"]
+__all__ = ["local_sweeps", "local_untangle", "unturn_quads", "vertex_freedoms", "band_limits", "BAND_BELOW",
+           "RATIO_FLOOR"]
 
 #: The band around the boundary (:attr:`hexsos_plugins.meshrepair.boundary.BoundaryModel.tolerance`) is for the
 #: hexes the surface holds down: only vertices of hexes below this scaled Jacobian leave the surface (measured on a
@@ -117,6 +118,98 @@ def _worst_first(H, q, verts, N):
     vmin = np.full(N, np.inf)
     np.minimum.at(vmin, H.ravel(), np.repeat(q, 8))
     return verts[np.argsort(vmin[verts], kind="stable")]
+
+
+def unturn_quads(V, H, movable, boundary, *, rounds=20, tries=10, step=0.25):
+    """Turn the boundary quads that face against their input normal (:meth:`BoundaryModel.turned_quads
+    <hexsos_plugins.meshrepair.boundary.BoundaryModel.turned_quads>`) back out, by steps of their own movable
+    vertices, none lowering the mesh's minimum scaled Jacobian.
+
+    Each vertex of a turned quad (``movable`` (N,) bool) steps along the gradient of the quad's vector area along
+    its input normal, ``step`` times its mean edge length at first, halved up to ``tries`` times; back into the band
+    where the step left it (:meth:`BoundaryModel.band_width <hexsos_plugins.meshrepair.boundary.BoundaryModel.
+    band_width>`: toward its nearest point of the input surface, curve or corner; a vertex without a band stays). A
+    step is kept only when the quad's vector area grows along its normal, every hex around the vertex stays at or
+    above the mesh's minimum sample and passes the test of validity (:func:`hexsos_plugins.meshrepair.kernels.
+    cell_minima`), no hex's shortest / longest edge falls below the lesser of its own and :data:`RATIO_FLOOR`, and no
+    other boundary quad around it that faces out turns over. Each quad's rounds over its vertices repeat while a step
+    is kept and it is turned, ``rounds`` at most; the steps of a quad that stays turned are undone (they would only
+    have lowered hexes toward the minimum). Returns (V', info) with ``turned_before``, ``turned_after``, ``steps``
+    (kept)."""
+    from . import kernels as lo
+    from .boundary import quad_areas
+
+    V = np.array(V, dtype=np.float64, copy=True)
+    H = np.ascontiguousarray(H, dtype=np.int64)
+    N = V.shape[0]
+    turned = np.flatnonzero(boundary.turned_quads(V)) if boundary.quads is not None else np.zeros(0, dtype=np.int64)
+    info = {"turned_before": int(turned.size), "turned_after": int(turned.size), "steps": 0}
+    if turned.size == 0 or H.shape[0] == 0:
+        return V, info
+    quads, normal = boundary.quads, boundary.quad_normal
+    G, factor = SAMPLES["hexahedron"]
+    G = np.ascontiguousarray(G)
+    m = float(lo.cell_minima(V, H, G, float(factor)).min())
+    floor = np.minimum(hex_edge_ratio(V, H), RATIO_FLOOR)
+    ptr, inc, _ = _incidence(H, N)
+    qflat = quads.ravel()
+    qorder = np.argsort(qflat, kind="stable")
+    qptr = np.searchsorted(qflat[qorder], np.arange(N + 1))
+    width = np.zeros(N)
+    width[boundary.vertices] = boundary.band_width()
+    size = _edge_length(V, H, N)
+
+    def up(X, q):
+        return (quad_areas(X, quads[q]) * normal[q]).sum(axis=1)
+
+    for q in turned:
+        start, steps = V, 0
+        for _ in range(rounds):
+            kept = 0
+            for v in quads[q]:
+                if up(V, [q])[0] > 0:
+                    break
+                if not movable[v] or not width[v] > 0:
+                    continue
+                a = V[quads[q, 2]] - V[quads[q, 0]]
+                b = V[quads[q, 3]] - V[quads[q, 1]]
+                n = normal[q]
+                # d (n . a x b) / d p_k, a = p2 - p0, b = p3 - p1: n . a x b = a . (b x n) = b . (n x a)
+                k = int(np.flatnonzero(quads[q] == v)[0])
+                g = (-np.cross(b, n), -np.cross(n, a), np.cross(b, n), np.cross(n, a))[k]
+                gn = float(np.sqrt(g @ g))
+                if not gn > 0:
+                    continue
+                hx = inc[ptr[v]:ptr[v + 1]]
+                around = qorder[qptr[v]:qptr[v + 1]] // 4
+                facing = around[up(V, around) > 0]
+                before = up(V, [q])[0]
+                h = step * size[v] / gn
+                for _t in range(tries):
+                    W = V.copy()
+                    W[v] = V[v] + h * g
+                    C = boundary.closest(W, [v])[v]
+                    d = W[v] - C
+                    dn = float(np.sqrt(d @ d))
+                    if dn > width[v]:
+                        W[v] = C + (width[v] / dn) * d
+                    if (up(W, [q])[0] > before
+                            and float(lo.cell_minima(W, np.ascontiguousarray(H[hx]), G, float(factor)).min()) >= m
+                            and bool(np.all(hex_edge_ratio(W, H[hx]) >= floor[hx]))
+                            and bool(np.all(up(W, facing) > 0))):
+                        V = W
+                        kept += 1
+                        break
+                    h *= 0.5
+            steps += kept
+            if not kept or up(V, [q])[0] > 0:
+                break
+        if up(V, [q])[0] > 0:
+            info["steps"] += steps
+        else:  # not turned out: its steps are undone (they only lowered hexes toward the minimum)
+            V = start
+    info["turned_after"] = int(boundary.turned_quads(V).sum())
+    return V, info
 
 
 def local_untangle(V, H, sizes, movable, *, boundary=None, deadline=None, band=0.3, tau=0.05, step=0.1,

@@ -114,7 +114,8 @@ def summary_optimize(res):
         + (f"; local: only the {s['local_region_vertices']} vertices within {s['rings']} rings of the "
            f"cells not proven valid could move" if s.get("local") else ""),
     ] + ([f"surface           {s['turned_quads_before']} -> {s['turned_quads_after']} boundary quads turned over "
-          "(facing against their input normal: the surface folded there)"
+          "(facing against their input normal: the surface folded there"
+          + (f"; {s['unturned_quads']} turned back out at the end" if s.get("unturned_quads") else "") + ")"
           + (f"; {s['tilted_quads_before']} -> {s['tilted_quads_after']} of {s['boundary_quads']} tilted more than "
              f"{TILT_DEGREES:g} degrees from it" if "tilted_quads_after" in s else "")]
          if "turned_quads_after" in s else []) + [
