@@ -202,13 +202,13 @@ def test_published_kitten_stress_test_certified_with_its_surface_unfolded():
     assert "boundary quads turned over" in r.summary()
 
 
-def test_unturn_quads_turns_a_quad_back_out_without_lowering_the_minimum():
-    """A top quad of a 3 x 3 slab whose input normal leans toward -x (set by hand: the quad faces against it, turned
-    over); raising its corner at the slab's centre (shared by four hexes) by more than 0.2 turns it back out. With a
-    hex elsewhere at 0.5 the step costs nothing below the minimum and is kept; with every hex a unit cube (the
-    minimum 1) any step lowers it, and nothing moves; nor does a pinned vertex."""
+def test_straighten_quads_turns_a_quad_back_out_and_stands_a_tilted_one_up_without_lowering_the_minimum():
+    """A top quad of a 3 x 3 slab whose input normal leans toward -x, -y (set by hand): leaning by 101 degrees the
+    quad is turned over, by 78 only tilted; raising its corner at the slab's centre (shared by four hexes) turns it
+    back. With a hex elsewhere at 0.5 the step costs nothing below the minimum and is kept; with every hex a unit
+    cube (the minimum 1) any step lowers it, and nothing moves; nor does a pinned vertex."""
     from hexsos_plugins.cells.quality import scaled_jacobian
-    from hexsos_plugins.meshrepair.localopt import unturn_quads
+    from hexsos_plugins.meshrepair.localopt import straighten_quads
 
     P, H = _slab(4)
     low = P.copy()
@@ -216,24 +216,26 @@ def test_unturn_quads_turns_a_quad_back_out_without_lowering_the_minimum():
     low[far] += [0.6, 0.6, 0.0]  # one corner hex far from the quad, sheared: the mesh's minimum
     mine = float(scaled_jacobian(low, H).min())
     assert 0.3 < mine < 0.9
-    bm = boundary_model(P, [("hexahedron", H)], tolerance=0.8)
-    q = int(np.flatnonzero(np.all(P[bm.quads][:, :, 2] == 1, axis=1)
-                           & np.all(P[bm.quads][:, :, :2].max(axis=1) == 1, axis=1))[0])  # top, x, y in [0, 1]
-    bm.quad_normal[q] = np.array([-1.0, -1.0, -0.2]) / np.sqrt(2.04)
-    assert bm.turned_quads(low).tolist().count(True) == 1 and bm.turned_quads(low)[q]
     movable = np.ones(len(P), dtype=bool)
-    V, info = unturn_quads(low, H, movable, bm)
-    assert info["turned_before"] == 1 and info["turned_after"] == 0 and info["steps"] > 0
-    assert not bm.turned_quads(V).any()
-    moved = np.flatnonzero((V != low).any(axis=1))
-    assert set(moved) <= set(bm.quads[q]) and len(moved) >= 1
-    assert float(scaled_jacobian(V, H).min()) >= mine - 1e-12
-    assert (hs.check(V, H).status == 1).all()
-    # the minimum at 1: the quad stays turned and nothing moves
-    V1, info1 = unturn_quads(P, H, movable, bm)
-    assert info1["turned_after"] == 1 and info1["steps"] == 0 and np.array_equal(V1, P)
-    # its vertices pinned: the same
-    still = movable.copy()
-    still[bm.quads[q]] = False
-    V2, info2 = unturn_quads(low, H, still, bm)
-    assert info2["turned_after"] == 1 and np.array_equal(V2, low)
+    for lean, turned in ((-0.2, True), (0.3, False)):
+        bm = boundary_model(P, [("hexahedron", H)], tolerance=0.8)
+        q = int(np.flatnonzero(np.all(P[bm.quads][:, :, 2] == 1, axis=1)
+                               & np.all(P[bm.quads][:, :, :2].max(axis=1) == 1, axis=1))[0])  # top, x, y in [0, 1]
+        bm.quad_normal[q] = np.array([-1.0, -1.0, lean]) / np.sqrt(2.0 + lean * lean)
+        assert np.flatnonzero(bm.tilted_quads(low)).tolist() == [q] and bm.turned_quads(low)[q] == turned
+        V, info = straighten_quads(low, H, movable, bm)
+        assert (info["turned_before"], info["turned_after"]) == (int(turned), 0)
+        assert (info["tilted_before"], info["tilted_after"]) == (1, 0) and info["steps"] > 0
+        assert not bm.tilted_quads(V).any() and not bm.turned_quads(V).any()
+        moved = np.flatnonzero((V != low).any(axis=1))
+        assert set(moved) <= set(bm.quads[q]) and len(moved) >= 1
+        assert float(scaled_jacobian(V, H).min()) >= mine - 1e-12
+        assert (hs.check(V, H).status == 1).all()
+        # the minimum at 1: the quad stays and nothing moves
+        V1, info1 = straighten_quads(P, H, movable, bm)
+        assert info1["tilted_after"] == 1 and info1["steps"] == 0 and np.array_equal(V1, P)
+        # its vertices pinned: the same
+        still = movable.copy()
+        still[bm.quads[q]] = False
+        V2, info2 = straighten_quads(low, H, still, bm)
+        assert info2["tilted_after"] == 1 and np.array_equal(V2, low)

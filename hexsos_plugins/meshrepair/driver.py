@@ -20,8 +20,8 @@
    after every 10 of its rounds and at its end, vertex steps (:func:`hexsos_plugins.meshrepair.localopt.local_sweeps`)
    raise the minimum vertex by vertex, worst first, never lowering it; then the joint steps
    (:func:`hexsos_plugins.meshrepair.jointsteps.joint_steps`) move the worst hexes' vertices together. Last, the
-   boundary quads left turned over are turned back out where their own vertices can do it without lowering the
-   minimum (:func:`hexsos_plugins.meshrepair.localopt.unturn_quads`). ``local=True`` lets only the vertices of
+   boundary quads left turned over, or tilted far from their input normal, are turned back where their own
+   vertices can do it without lowering the minimum (:func:`hexsos_plugins.meshrepair.localopt.straighten_quads`). ``local=True`` lets only the vertices of
    the cells not proven valid and ``rings`` layers around them move, in every stage.
 3. **certify**: :func:`hexsos_plugins.check` on every hex (the kernel's proof over the whole element) and a
    check of every other 3-D cell (:func:`check_cells`). A mesh is reported repaired only when every cell is
@@ -450,9 +450,9 @@ def repair(points, hexes, *, cells=None, method: str = "optimize", boundary: str
         ``mean_sj_*``, ``min_sj_target``, ``min_sj_target_reached``, ``turned_quads_before`` / ``_after``
         (boundary quads whose vector area points against their input normal: the surface folded there; with a
         boundary model, not for ``boundary="free"``), ``tilted_quads_before`` / ``_after`` (more than
-        :data:`~hexsos_plugins.meshrepair.boundary.TILT_DEGREES` from it, turned ones too), ``unturned_quads``
-        (of the quads turned at the end, those turned back out: :func:`hexsos_plugins.meshrepair.localopt.
-        unturn_quads`), ``boundary_quads``,
+        :data:`~hexsos_plugins.meshrepair.boundary.TILT_DEGREES` from it, turned ones too), ``unturned_quads``,
+        ``untilted_quads`` (of the quads turned or tilted at the end, those turned back: :func:`hexsos_plugins.
+        meshrepair.localopt.straighten_quads`), ``boundary_quads``,
         ``max_displacement``,
         ``mean_displacement``, ``moved_vertices``, ``pinned_vertices``, ``boundary``, ``method``,
         ``stage_seconds``, ``seconds`` (from the start, after ``load_seconds``: the compiled loops loaded, or
@@ -754,17 +754,18 @@ class _Optimize:
         self._step("joint", W)
         return W
 
-    def _unturn(self, V, movable, bm, others):
-        """The boundary quads turned over at the end turned back out where their vertices can, within the band,
-        without lowering the minimum (:func:`hexsos_plugins.meshrepair.localopt.unturn_quads`); the vertices the
-        last steps could move."""
-        from .localopt import unturn_quads
+    def _straighten(self, V, movable, bm, others):
+        """The boundary quads turned over or tilted far from their input normal at the end turned back where their
+        vertices can, within the band, without lowering the minimum (:func:`hexsos_plugins.meshrepair.localopt.
+        straighten_quads`); the vertices the last steps could move."""
+        from .localopt import straighten_quads
 
-        W, info = unturn_quads(V, self.H, self._hex_movable(movable, others, True), bm)
+        W, info = straighten_quads(V, self.H, self._hex_movable(movable, others, True), bm)
         self.local_info["unturned"] = info["turned_before"] - info["turned_after"]
+        self.local_info["untilted"] = info["tilted_before"] - info["tilted_after"]
         if not info["steps"]:
             return V
-        self._step("unturn", W)
+        self._step("straighten", W)
         return W
 
     def _into_band(self, V, bm, sizes):
@@ -1094,7 +1095,7 @@ class _Optimize:
                 stage_s["joint"] = time.perf_counter() - ts
             if untangled and slide and self.surface_tolerance > 0:
                 V = self._into_band(V, bm, sizes)
-                V = self._unturn(V, movable, bm, others)
+                V = self._straighten(V, movable, bm, others)
         except _Stopped:
             V = self.best[1]
         # stage 3: the certificate
@@ -1196,6 +1197,7 @@ class _Optimize:
             "local_sweeps": int(self.local_info.get("sweeps", 0)), "local_steps": int(self.local_info.get("steps", 0)),
             "joint_steps": int(self.local_info.get("joint_steps", 0)),
             "unturned_quads": int(self.local_info.get("unturned", 0)),
+            "untilted_quads": int(self.local_info.get("untilted", 0)),
             "joint_past_budget": float(self.local_info.get("joint_past_budget", 0.0)),
             "outer_iterations": len(self.history) - 1, "sos_steps": int(sum(h["sos_steps"] for h in self.history)),
             "projection_steps": 0, "sdp_solves": 0,

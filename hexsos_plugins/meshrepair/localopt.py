@@ -22,7 +22,7 @@ import numpy as np
 from ..cells.hexahedron import EDGES
 from ..cells.quality import SAMPLES, SHORT_EDGE_RATIO, hex_edge_ratio
 
-__all__ = ["local_sweeps", "local_untangle", "unturn_quads", "vertex_freedoms", "band_limits", "BAND_BELOW",
+__all__ = ["local_sweeps", "local_untangle", "straighten_quads", "vertex_freedoms", "band_limits", "BAND_BELOW",
            "RATIO_FLOOR"]
 
 #: The band around the boundary (:attr:`hexsos_plugins.meshrepair.boundary.BoundaryModel.tolerance`) is for the
@@ -120,33 +120,52 @@ def _worst_first(H, q, verts, N):
     return verts[np.argsort(vmin[verts], kind="stable")]
 
 
-def unturn_quads(V, H, movable, boundary, *, rounds=20, tries=10, step=0.25):
-    """Turn the boundary quads that face against their input normal (:meth:`BoundaryModel.turned_quads
-    <hexsos_plugins.meshrepair.boundary.BoundaryModel.turned_quads>`) back out, by steps of their own movable
-    vertices, none lowering the mesh's minimum scaled Jacobian.
+def straighten_quads(V, H, movable, boundary, *, degrees=None, rounds=20, tries=10, step=0.25):
+    """Turn the boundary quads that face against their input normal back out, and stand those tilted more than
+    ``degrees`` from it (default :data:`hexsos_plugins.meshrepair.boundary.TILT_DEGREES`) back toward it, by steps
+    of their own movable vertices, none lowering the mesh's minimum scaled Jacobian.
 
-    Each vertex of a turned quad (``movable`` (N,) bool) steps along the gradient of the quad's vector area along
-    its input normal, ``step`` times its mean edge length at first, halved up to ``tries`` times; back into the band
-    where the step left it (:meth:`BoundaryModel.band_width <hexsos_plugins.meshrepair.boundary.BoundaryModel.
-    band_width>`: toward its nearest point of the input surface, curve or corner; a vertex without a band stays). A
-    step is kept only when the quad's vector area grows along its normal, every hex around the vertex stays at or
-    above the mesh's minimum sample and passes the test of validity (:func:`hexsos_plugins.meshrepair.kernels.
-    cell_minima`), no hex's shortest / longest edge falls below the lesser of its own and :data:`RATIO_FLOOR`, and no
-    other boundary quad around it that faces out turns over. Each quad's rounds over its vertices repeat while a step
-    is kept and it is turned, ``rounds`` at most; the steps of a quad that stays turned are undone (they would only
-    have lowered hexes toward the minimum). Returns (V', info) with ``turned_before``, ``turned_after``, ``steps``
-    (kept)."""
+    The quads are taken worst first (the least cosine of their vector area with their input normal,
+    :meth:`BoundaryModel.quad_tilt <hexsos_plugins.meshrepair.boundary.BoundaryModel.quad_tilt>`). Each vertex of
+    a quad (``movable`` (N,) bool) steps along the gradient of that cosine, ``step`` times its mean edge length at
+    first, halved up to ``tries`` times; back into the band where the step left it
+    (:meth:`BoundaryModel.band_width <hexsos_plugins.meshrepair.boundary.BoundaryModel.band_width>`: toward its
+    nearest point of the input surface, curve or corner; a vertex without a band stays). A step is kept only when
+    the quad's cosine grows, every hex around the vertex stays at or above the mesh's minimum sample and passes the
+    test of validity (:func:`hexsos_plugins.meshrepair.kernels.cell_minima`), no hex's shortest / longest edge falls
+    below the lesser of its own and :data:`RATIO_FLOOR`, and no other boundary quad around it falls below the lesser
+    of its own cosine and the bound's. A quad's rounds over its vertices repeat while a step is kept and it is
+    below the bound, ``rounds`` at most; they are undone unless the quad ends turned over no more (it was) or
+    tilted no more (it was only tilted): else they would only have lowered hexes toward the minimum. Returns (V',
+    info) with ``turned_before`` / ``_after``, ``tilted_before`` / ``_after`` (turned ones too) and ``steps`` (kept).
+    """
     from . import kernels as lo
-    from .boundary import quad_areas
+    from .boundary import TILT_DEGREES, quad_areas
 
     V = np.array(V, dtype=np.float64, copy=True)
     H = np.ascontiguousarray(H, dtype=np.int64)
     N = V.shape[0]
-    turned = np.flatnonzero(boundary.turned_quads(V)) if boundary.quads is not None else np.zeros(0, dtype=np.int64)
-    info = {"turned_before": int(turned.size), "turned_after": int(turned.size), "steps": 0}
-    if turned.size == 0 or H.shape[0] == 0:
+    bound = float(np.cos(np.radians(TILT_DEGREES if degrees is None else float(degrees))))
+    info = {"turned_before": 0, "turned_after": 0, "tilted_before": 0, "tilted_after": 0, "steps": 0}
+    if boundary.quads is None or boundary.quads.shape[0] == 0 or H.shape[0] == 0:
         return V, info
     quads, normal = boundary.quads, boundary.quad_normal
+
+    def cosine(X, q):
+        A = quad_areas(X, quads[q])
+        size = np.sqrt((A * A).sum(axis=1))
+        c = (A * normal[q]).sum(axis=1)
+        return np.where(size > 0, c / np.where(size > 0, size, 1.0), 0.0)
+
+    has_normal = (normal != 0).any(axis=1)
+    every = np.arange(quads.shape[0])
+    c0 = np.where(has_normal, cosine(V, every), 1.0)
+    info["turned_before"] = info["turned_after"] = int((c0 <= 0).sum())
+    info["tilted_before"] = info["tilted_after"] = int((c0 < bound).sum())
+    low = np.flatnonzero(c0 < bound)
+    if low.size == 0:
+        return V, info
+    low = low[np.argsort(c0[low], kind="stable")]
     G, factor = SAMPLES["hexahedron"]
     G = np.ascontiguousarray(G)
     m = float(lo.cell_minima(V, H, G, float(factor)).min())
@@ -159,31 +178,33 @@ def unturn_quads(V, H, movable, boundary, *, rounds=20, tries=10, step=0.25):
     width[boundary.vertices] = boundary.band_width()
     size = _edge_length(V, H, N)
 
-    def up(X, q):
-        return (quad_areas(X, quads[q]) * normal[q]).sum(axis=1)
-
-    for q in turned:
+    for q in low:
         start, steps = V, 0
+        was = float(cosine(V, [q])[0])
         for _ in range(rounds):
             kept = 0
             for v in quads[q]:
-                if up(V, [q])[0] > 0:
+                now = float(cosine(V, [q])[0])
+                if now >= bound:
                     break
                 if not movable[v] or not width[v] > 0:
                     continue
                 a = V[quads[q, 2]] - V[quads[q, 0]]
                 b = V[quads[q, 3]] - V[quads[q, 1]]
-                n = normal[q]
-                # d (n . a x b) / d p_k, a = p2 - p0, b = p3 - p1: n . a x b = a . (b x n) = b . (n x a)
+                A = np.cross(a, b)
+                An = float(np.sqrt(A @ A))
+                # d cos / d A = (n - cos A / |A|) / |A|; A = a x b, a = p2 - p0, b = p3 - p1: u . a x b = a . (b x u)
+                # = b . (u x a)
+                u = (normal[q] - now * A / An) / An if An > 0 else normal[q]
                 k = int(np.flatnonzero(quads[q] == v)[0])
-                g = (-np.cross(b, n), -np.cross(n, a), np.cross(b, n), np.cross(n, a))[k]
+                g = (-np.cross(b, u), -np.cross(u, a), np.cross(b, u), np.cross(u, a))[k]
                 gn = float(np.sqrt(g @ g))
                 if not gn > 0:
                     continue
                 hx = inc[ptr[v]:ptr[v + 1]]
                 around = qorder[qptr[v]:qptr[v + 1]] // 4
-                facing = around[up(V, around) > 0]
-                before = up(V, [q])[0]
+                around = around[(around != q) & has_normal[around]]
+                keep_at = np.minimum(cosine(V, around), bound)
                 h = step * size[v] / gn
                 for _t in range(tries):
                     W = V.copy()
@@ -193,22 +214,25 @@ def unturn_quads(V, H, movable, boundary, *, rounds=20, tries=10, step=0.25):
                     dn = float(np.sqrt(d @ d))
                     if dn > width[v]:
                         W[v] = C + (width[v] / dn) * d
-                    if (up(W, [q])[0] > before
+                    if (float(cosine(W, [q])[0]) > now
                             and float(lo.cell_minima(W, np.ascontiguousarray(H[hx]), G, float(factor)).min()) >= m
                             and bool(np.all(hex_edge_ratio(W, H[hx]) >= floor[hx]))
-                            and bool(np.all(up(W, facing) > 0))):
+                            and bool(np.all(cosine(W, around) >= keep_at))):
                         V = W
                         kept += 1
                         break
                     h *= 0.5
             steps += kept
-            if not kept or up(V, [q])[0] > 0:
+            if not kept or float(cosine(V, [q])[0]) >= bound:
                 break
-        if up(V, [q])[0] > 0:
+        end = float(cosine(V, [q])[0])
+        if (was <= 0 < end) or end >= bound:
             info["steps"] += steps
-        else:  # not turned out: its steps are undone (they only lowered hexes toward the minimum)
+        else:  # neither turned out nor stood up: its steps are undone
             V = start
-    info["turned_after"] = int(boundary.turned_quads(V).sum())
+    c1 = np.where(has_normal, cosine(V, every), 1.0)
+    info["turned_after"] = int((c1 <= 0).sum())
+    info["tilted_after"] = int((c1 < bound).sum())
     return V, info
 
 

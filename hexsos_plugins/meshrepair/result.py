@@ -117,7 +117,8 @@ def summary_optimize(res):
           "(facing against their input normal: the surface folded there"
           + (f"; {s['unturned_quads']} turned back out at the end" if s.get("unturned_quads") else "") + ")"
           + (f"; {s['tilted_quads_before']} -> {s['tilted_quads_after']} of {s['boundary_quads']} tilted more than "
-             f"{TILT_DEGREES:g} degrees from it" if "tilted_quads_after" in s else "")]
+             f"{TILT_DEGREES:g} degrees from it" if "tilted_quads_after" in s else "")
+          + (f" ({s['untilted_quads']} stood back up at the end)" if s.get("untilted_quads") else "")]
          if "turned_quads_after" in s else []) + [
         f"stages            untangle {st.get('untangle', 0):.2f} s ({s['untangle_iterations']} iterations), quality "
         f"{st.get('quality', 0):.2f} s ({s['quality_rounds']} rounds"
