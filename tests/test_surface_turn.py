@@ -239,3 +239,26 @@ def test_straighten_quads_turns_a_quad_back_out_and_stands_a_tilted_one_up_witho
         still[bm.quads[q]] = False
         V2, info2 = straighten_quads(low, H, still, bm)
         assert info2["tilted_after"] == 1 and np.array_equal(V2, low)
+
+
+def test_closest_point_of_one_vertex_is_closest_of_every_kind_and_quad_tilt_of_some_rows_is_theirs():
+    """``BoundaryModel.closest_point`` (one vertex at a trial position) gives what ``closest`` gives for it: on a
+    cube (3^3 hexes, 45 degree features) a face vertex, an edge vertex and a corner, each moved off; an interior
+    vertex is refused. ``quad_tilt(V, rows)`` is ``quad_tilt(V)[rows]``."""
+    from hexsos_plugins.errors import InvalidInputError
+    from hexsos_plugins.examples import structured_grid
+
+    P, H = structured_grid(3)
+    bm = boundary_model(P, [("hexahedron", H)])
+    V = P + 0.07 * np.random.default_rng(3).uniform(-1, 1, P.shape)
+    kind = dict(zip(bm.vertices.tolist(), bm.kind.tolist()))
+    picks = [next(v for v, k in kind.items() if k == want) for want in (0, 1, 2)]
+    full = bm.closest(V, picks)
+    for v in picks:
+        assert np.array_equal(bm.closest_point(V[v], v), full[v])
+        assert not np.array_equal(full[v], V[v])
+    inside = int(np.setdiff1d(np.arange(len(P)), bm.vertices)[0])
+    with pytest.raises(InvalidInputError, match="boundary vertex"):
+        bm.closest_point(V[inside], inside)
+    rows = [5, 0, 17]
+    assert np.array_equal(bm.quad_tilt(V, rows), bm.quad_tilt(V)[rows])

@@ -104,9 +104,9 @@ def read_mesh(path, fix_orientation: bool):
     """Read ``path``; cells written in the mirrored node order are an error naming them, unless
     ``fix_orientation``, which flips exactly those. Mirrored: every cell of a type negatively oriented (the file
     mirrors that type's node order), or the cells that :meth:`~hexsos_plugins.io.mesh.Mesh.mirrored_cells` finds
-    by the faces they share and by blocks (a mirrored region beside a right-handed one, a block written mirrored). Returns ``(mesh,
-    orientation)`` with orientation ``"right-handed"``, ``"mixed"``, ``"left-handed (TYPES)"`` or ``"mirrored
-    (COUNTS)"``; the last two are flipped."""
+    by the faces they share and by blocks (a mirrored region beside a right-handed one, a block written
+    mirrored). Returns ``(mesh, orientation)`` with orientation ``"right-handed"``, ``"mixed"``, ``"left-handed
+    (TYPES)"`` or ``"mirrored (COUNTS)"``; the last two are flipped."""
     import numpy as np
 
     from ..cells.elements import CELL_TYPES

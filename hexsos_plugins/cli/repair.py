@@ -85,8 +85,8 @@ def add_parser(subparsers):
                                                  "min scaled Jacobian per step) as a PNG (needs matplotlib)")
     p.add_argument("--histogram", metavar="PNG", help="write the scaled Jacobian histogram before / after as a PNG")
     p.add_argument("--fix-orientation", action="store_true",
-                   help="flip the cells written in the mirrored node order first (a left-handed file, or a block or part of "
-                        "it: see hexsos check)")
+                   help="flip the cells written in the mirrored node order first (a left-handed file, or a block "
+                        "or part of it: see hexsos check)")
     p.add_argument("--no-fidelity", dest="fidelity", action="store_false",
                    help="skip the boundary fidelity (Hausdorff distance with pymeshlab)")
     add_run_options(p)  # --jobs, --scheduler (the kernel calls), --progress

@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..cells.elements import ELEMENTS
-from ..errors import DependencyError
+from ..errors import DependencyError, InvalidInputError
 
 __all__ = ["boundary_faces", "interior_vertices", "BoundaryModel", "NearestPoints", "boundary_model", "Slide",
            "quad_areas", "quad_corners", "size_floor", "TILT_DEGREES"]
@@ -175,14 +175,15 @@ class BoundaryModel:
         (turned over ones too): the surface's orientation lost there, though its vertices may lie on it."""
         return self.quad_tilt(V) < np.cos(np.radians(float(degrees)))
 
-    def quad_tilt(self, V) -> np.ndarray:
+    def quad_tilt(self, V, rows=None) -> np.ndarray:
         """(Q,): the cosine of the angle between each boundary quad's vector area at V and its input normal (-1 to
         1; 0 where the quad has no area at V); 1 for a quad with no input normal (every point of the input
-        coincident), which counts as neither turned nor tilted."""
+        coincident), which counts as neither turned nor tilted. ``rows``: those quads only, in that order."""
         if self.quads is None or self.quads.shape[0] == 0:
             return np.zeros(0)
-        n = self.quad_normal
-        a = quad_areas(V, self.quads)
+        rows = slice(None) if rows is None else np.asarray(rows, dtype=np.int64)
+        n = self.quad_normal[rows]
+        a = quad_areas(V, self.quads[rows])
         size = np.sqrt((a * a).sum(axis=1))
         cos = np.where(size > 0, (a * n).sum(axis=1) / np.where(size > 0, size, 1.0), 0.0)
         return np.where((n != 0).any(axis=1), cos, 1.0)
@@ -215,6 +216,19 @@ class BoundaryModel:
         rows = self.vertices[(self.kind == 2) & sel]
         W[rows] = self.surf_V[rows]
         return W
+
+    def closest_point(self, x, v) -> np.ndarray:
+        """(3,): the nearest point to ``x`` (3,) of boundary vertex ``v``'s input surface or curve, as :meth:`closest`
+        moves it there (a corner: its input position)."""
+        at = int(np.searchsorted(self.vertices, v))
+        if at >= self.vertices.size or self.vertices[at] != v:
+            raise InvalidInputError(f"expected a boundary vertex, found vertex {int(v)}, which is on no boundary face")
+        kind = int(self.kind[at])
+        if kind == 2:
+            return np.array(self.surf_V[v], dtype=np.float64)
+        if (self.surf_F if kind == 0 else self.feat_E).shape[0] == 0:
+            return np.array(x, dtype=np.float64)
+        return self.nearest(np.asarray(x, dtype=np.float64)[None], kind)[2][0]
 
     def frames(self, V, idx):
         """For the surface and curve vertices among ``idx``: (rows, Q (k, 3, 3)), the projector onto the normal of

@@ -21,8 +21,9 @@
    raise the minimum vertex by vertex, worst first, never lowering it; then the joint steps
    (:func:`hexsos_plugins.meshrepair.jointsteps.joint_steps`) move the worst hexes' vertices together. Last, the
    boundary quads left turned over, or tilted far from their input normal, are turned back where their own
-   vertices can do it without lowering the minimum (:func:`hexsos_plugins.meshrepair.localopt.straighten_quads`). ``local=True`` lets only the vertices of
-   the cells not proven valid and ``rings`` layers around them move, in every stage.
+   vertices can do it without lowering the minimum (:func:`hexsos_plugins.meshrepair.localopt.straighten_quads`).
+   ``local=True`` lets only the vertices of the cells not proven valid and ``rings`` layers around them move, in
+   every stage.
 3. **certify**: :func:`hexsos_plugins.check` on every hex (the kernel's proof over the whole element) and a
    check of every other 3-D cell (:func:`check_cells`). A mesh is reported repaired only when every cell is
    proven valid. If not, the paper's Algorithm 2 (:func:`hexsos_plugins.meshrepair.paper.repair_paper`) runs on

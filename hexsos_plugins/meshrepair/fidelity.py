@@ -27,6 +27,7 @@ __all__ = ["boundary_fidelity", "boundary_quads", "surface_area", "FAR_FRACTION"
 #: boundary's bounding-box diagonal is far from it: ``hexsos repair`` says so in a warning
 FAR_FRACTION = 0.02
 
+
 def _pymeshlab():
     try:
         import pymeshlab

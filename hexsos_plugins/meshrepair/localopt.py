@@ -140,7 +140,7 @@ def straighten_quads(V, H, movable, boundary, *, degrees=None, rounds=20, tries=
     info) with ``turned_before`` / ``_after``, ``tilted_before`` / ``_after`` (turned ones too) and ``steps`` (kept).
     """
     from . import kernels as lo
-    from .boundary import TILT_DEGREES, quad_areas
+    from .boundary import TILT_DEGREES
 
     V = np.array(V, dtype=np.float64, copy=True)
     H = np.ascontiguousarray(H, dtype=np.int64)
@@ -150,16 +150,7 @@ def straighten_quads(V, H, movable, boundary, *, degrees=None, rounds=20, tries=
     if boundary.quads is None or boundary.quads.shape[0] == 0 or H.shape[0] == 0:
         return V, info
     quads, normal = boundary.quads, boundary.quad_normal
-
-    def cosine(X, q):
-        A = quad_areas(X, quads[q])
-        size = np.sqrt((A * A).sum(axis=1))
-        c = (A * normal[q]).sum(axis=1)
-        return np.where(size > 0, c / np.where(size > 0, size, 1.0), 0.0)
-
-    has_normal = (normal != 0).any(axis=1)
-    every = np.arange(quads.shape[0])
-    c0 = np.where(has_normal, cosine(V, every), 1.0)
+    c0 = boundary.quad_tilt(V)
     info["turned_before"] = info["turned_after"] = int((c0 <= 0).sum())
     info["tilted_before"] = info["tilted_after"] = int((c0 < bound).sum())
     low = np.flatnonzero(c0 < bound)
@@ -178,13 +169,15 @@ def straighten_quads(V, H, movable, boundary, *, degrees=None, rounds=20, tries=
     width[boundary.vertices] = boundary.band_width()
     size = _edge_length(V, H, N)
 
+    def cos(q):
+        return float(boundary.quad_tilt(V, [q])[0])
+
     for q in low:
-        start, steps = V, 0
-        was = float(cosine(V, [q])[0])
+        start, steps, was = V.copy(), 0, cos(q)
         for _ in range(rounds):
             kept = 0
             for v in quads[q]:
-                now = float(cosine(V, [q])[0])
+                now = cos(q)
                 if now >= bound:
                     break
                 if not movable[v] or not width[v] > 0:
@@ -202,35 +195,35 @@ def straighten_quads(V, H, movable, boundary, *, degrees=None, rounds=20, tries=
                 if not gn > 0:
                     continue
                 hx = inc[ptr[v]:ptr[v + 1]]
+                Hx = np.ascontiguousarray(H[hx])
                 around = qorder[qptr[v]:qptr[v + 1]] // 4
-                around = around[(around != q) & has_normal[around]]
-                keep_at = np.minimum(cosine(V, around), bound)
+                around = around[around != q]
+                keep_at = np.minimum(boundary.quad_tilt(V, around), bound)
+                x0 = V[v].copy()
                 h = step * size[v] / gn
                 for _t in range(tries):
-                    W = V.copy()
-                    W[v] = V[v] + h * g
-                    C = boundary.closest(W, [v])[v]
-                    d = W[v] - C
+                    x = x0 + h * g
+                    C = boundary.closest_point(x, v)
+                    d = x - C
                     dn = float(np.sqrt(d @ d))
-                    if dn > width[v]:
-                        W[v] = C + (width[v] / dn) * d
-                    if (float(cosine(W, [q])[0]) > now
-                            and float(lo.cell_minima(W, np.ascontiguousarray(H[hx]), G, float(factor)).min()) >= m
-                            and bool(np.all(hex_edge_ratio(W, H[hx]) >= floor[hx]))
-                            and bool(np.all(cosine(W, around) >= keep_at))):
-                        V = W
+                    V[v] = C + (width[v] / dn) * d if dn > width[v] else x
+                    if (cos(q) > now
+                            and float(lo.cell_minima(V, Hx, G, float(factor)).min()) >= m
+                            and bool(np.all(hex_edge_ratio(V, Hx) >= floor[hx]))
+                            and bool(np.all(boundary.quad_tilt(V, around) >= keep_at))):
                         kept += 1
                         break
+                    V[v] = x0
                     h *= 0.5
             steps += kept
-            if not kept or float(cosine(V, [q])[0]) >= bound:
+            if not kept or cos(q) >= bound:
                 break
-        end = float(cosine(V, [q])[0])
+        end = cos(q)
         if (was <= 0 < end) or end >= bound:
             info["steps"] += steps
         else:  # neither turned out nor stood up: its steps are undone
             V = start
-    c1 = np.where(has_normal, cosine(V, every), 1.0)
+    c1 = boundary.quad_tilt(V)
     info["turned_after"] = int((c1 <= 0).sum())
     info["tilted_after"] = int((c1 < bound).sum())
     return V, info
