@@ -250,16 +250,21 @@ def hexes_to_mesh(X):
     return X.reshape(-1, 3).copy(), np.arange(X.shape[0] * 8, dtype=np.int64).reshape(-1, 8)
 
 
+def _runs(key):
+    """Rows of ``key`` (F, k), sorted node tuples, grouped by equal tuples: (order, starts, lengths), the rows in
+    sorted order, where each run of equal rows starts in it and how long it is."""
+    order = np.lexsort(key.T[::-1])  # sort the face node tuples; equal faces become neighbours
+    sk = key[order]
+    starts = np.flatnonzero(np.concatenate([[True], (sk[1:] != sk[:-1]).any(axis=1)]))
+    return order, starts, np.diff(np.append(starts, len(key)))
+
+
 def _unique_rows(key):
     """Rows of ``key`` (F, k), sorted node tuples, that occur exactly once, sorted."""
     if len(key) == 0:
         return np.zeros(0, dtype=np.int64)
-    order = np.lexsort(key.T[::-1])  # sort the face node tuples; equal faces become neighbours
-    sk = key[order]
-    differs = (sk[1:] != sk[:-1]).any(axis=1)
-    first = np.concatenate([[True], differs])  # start of a run of equal faces
-    last = np.concatenate([differs, [True]])  # end of a run
-    return np.sort(order[first & last])  # runs of length 1: faces of exactly one cell
+    order, starts, lengths = _runs(key)
+    return np.sort(order[starts[lengths == 1]])  # runs of length 1: faces of exactly one cell
 
 
 def boundary_face_rows(hexes):
@@ -589,26 +594,11 @@ class Mesh:
             start += len(conn)
         pairs = [np.zeros((0, 2), dtype=np.int64)]
         flips = [np.zeros(0, dtype=bool)]
-        for k in (3, 4):
-            rows, owner, start = [], [], 0
-            for _, t, conn in self._blocks:
-                for f in ELEMENTS[t].faces:
-                    if len(f) == k:
-                        faces = conn[:, list(f)]
-                        keep = near[faces].all(axis=1)
-                        rows.append(faces[keep])
-                        owner.append(start + np.flatnonzero(keep))
-                start += len(conn)
-            if not rows:
+        for k, (faces, owner) in self._corner_faces(near).items():
+            if len(faces) == 0:
                 continue
-            faces, owner = np.concatenate(rows), np.concatenate(owner)
-            key = np.sort(faces, axis=1)
-            order = np.lexsort(key.T[::-1])
-            sk = key[order]
-            differs = np.concatenate([[True], (sk[1:] != sk[:-1]).any(axis=1), [True]])
-            starts = np.flatnonzero(differs)
-            lengths = np.diff(starts)
-            two = starts[:-1][lengths == 2]
+            order, starts, lengths = _runs(np.sort(faces, axis=1))
+            two = starts[lengths == 2]
             a, b = order[two], order[two + 1]
             # a face's direction: the corner after its least corner (the same face read the same way round)
             first = np.argmin(faces, axis=1)
@@ -757,24 +747,34 @@ class Mesh:
         return out
 
     # ------------------------------------------------------------------ boundary
-    def _all_faces(self):
-        """Every corner face of every cell: (key rows sorted, faces, owning cell, face kind 3/4, reversed?)."""
-        sign = self.centre_det() < 0
-        tri, quad = [], []
+    def _corner_faces(self, near=None):
+        """``{3: (faces (T, 3), owner (T,)), 4: (faces (Q, 4), owner (Q,))}``: every corner face of every cell in
+        its element's order (outward for a positive cell) and the cell it belongs to; with ``near`` (n_points,)
+        bool, only the faces whose nodes are all ``near``."""
+        parts = {3: [], 4: []}
         start = 0
         for _, t, conn in self._blocks:
-            el = ELEMENTS[t]
             ids = np.arange(start, start + len(conn), dtype=np.int64)
-            for f in el.faces:
-                (tri if len(f) == 3 else quad).append((conn[:, list(f)], ids))
+            for f in ELEMENTS[t].faces:
+                faces = conn[:, list(f)]
+                if near is None:
+                    parts[len(f)].append((faces, ids))
+                else:
+                    keep = near[faces].all(axis=1)
+                    parts[len(f)].append((faces[keep], ids[keep]))
             start += len(conn)
+        return {k: (np.concatenate([p[0] for p in ps]), np.concatenate([p[1] for p in ps])) if ps else
+                (np.zeros((0, k), dtype=np.int64), np.zeros(0, dtype=np.int64)) for k, ps in parts.items()}
+
+    def _all_faces(self):
+        """The boundary faces by kind: ``{3: (faces, owner), 4: (faces, owner)}``, the faces of exactly one cell,
+        reversed where their cell is negatively oriented."""
+        sign = self.centre_det() < 0
         out = {}
-        for k, parts in ((3, tri), (4, quad)):
-            if not parts:
-                out[k] = (np.zeros((0, k), dtype=np.int64), np.zeros(0, dtype=np.int64))
+        for k, (faces, owner) in self._corner_faces().items():
+            if len(faces) == 0:
+                out[k] = (faces, owner)
                 continue
-            faces = np.concatenate([p[0] for p in parts])
-            owner = np.concatenate([p[1] for p in parts])
             rows = _unique_rows(np.sort(faces, axis=1))
             faces, owner = faces[rows], owner[rows]
             flip = sign[owner]
