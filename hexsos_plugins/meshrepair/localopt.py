@@ -145,18 +145,18 @@ def straighten_quads(V, H, movable, boundary, *, degrees=None, rounds=20, tries=
     V = np.array(V, dtype=np.float64, copy=True)
     H = np.ascontiguousarray(H, dtype=np.int64)
     N = V.shape[0]
-    bound = float(np.cos(np.radians(TILT_DEGREES if degrees is None else float(degrees))))
+    degrees = TILT_DEGREES if degrees is None else float(degrees)
+    bound = float(np.cos(np.radians(degrees)))
     info = {"turned_before": 0, "turned_after": 0, "tilted_before": 0, "tilted_after": 0, "steps": 0}
     if boundary.quads is None or boundary.quads.shape[0] == 0 or H.shape[0] == 0:
         return V, info
     quads, normal = boundary.quads, boundary.quad_normal
-    c0 = boundary.quad_tilt(V)
-    info["turned_before"] = info["turned_after"] = int((c0 <= 0).sum())
-    info["tilted_before"] = info["tilted_after"] = int((c0 < bound).sum())
-    low = np.flatnonzero(c0 < bound)
+    info["turned_before"] = info["turned_after"] = int(boundary.turned_quads(V).sum())
+    low = np.flatnonzero(boundary.tilted_quads(V, degrees))
+    info["tilted_before"] = info["tilted_after"] = int(low.size)
     if low.size == 0:
         return V, info
-    low = low[np.argsort(c0[low], kind="stable")]
+    low = low[np.argsort(boundary.quad_tilt(V, low), kind="stable")]
     G, factor = SAMPLES["hexahedron"]
     G = np.ascontiguousarray(G)
     m = float(lo.cell_minima(V, H, G, float(factor)).min())
@@ -223,9 +223,8 @@ def straighten_quads(V, H, movable, boundary, *, degrees=None, rounds=20, tries=
             info["steps"] += steps
         else:  # neither turned out nor stood up: its steps are undone
             V = start
-    c1 = boundary.quad_tilt(V)
-    info["turned_after"] = int((c1 <= 0).sum())
-    info["tilted_after"] = int((c1 < bound).sum())
+    info["turned_after"] = int(boundary.turned_quads(V).sum())
+    info["tilted_after"] = int(boundary.tilted_quads(V, degrees).sum())
     return V, info
 
 
