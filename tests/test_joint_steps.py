@@ -235,7 +235,8 @@ def test_a_part_of_a_refused_step_is_kept_and_the_same_programs_reach_higher(mon
 
 def test_the_trust_region_grows_after_a_whole_step_stays_after_half_and_halves_otherwise(monkeypatch):
     """``next_delta``: x1.5 (capped) after the whole move kept, the same after half of it, half after a quarter or
-    none; and the steps apply it once per program to the part they kept (the cubed ball, 20 programs)."""
+    none; and the steps apply it once per round to the part the lead group kept (the cubed ball: one group, 20
+    programs)."""
     from hexsos_plugins.meshrepair import jointsteps
 
     assert next_delta(0.02, 1.0) == pytest.approx(0.03) and next_delta(0.09, 1.0) == DELTA_MAX
@@ -359,3 +360,61 @@ def test_a_program_keeps_every_sample_a_part_of_its_height_above_the_minimum(mon
     free = {seed: one_program(seed) for seed in (2, 3)}
     assert all(v < -1e-3 for _, v in free.values()), free
     assert all(abs(free[k][0] - kept[k][0]) < 2e-3 for k in free), (free, kept)
+
+
+def test_vertex_groups_split_the_moving_vertices_where_no_hex_joins_them():
+    """``vertex_groups``: on a row of 6 x 1 x 1 hexes, corner vertices at x = 0, 2 and 4 edge lengths share no hex:
+    three groups, each with the hexes holding its vertex; the vertex at x = 1 shares a hex with those at 0 and 2 and
+    joins them into one group. The groups' hexes never overlap and come largest first."""
+    from hexsos_plugins.meshrepair.jointsteps import vertex_groups
+
+    P, H = structured_grid(6, 1, 1)
+    h = P[:, 0].max() / 6
+    at = {i: int(np.flatnonzero(np.isclose(P[:, 0], i * h) & (P[:, 1] == 0) & (P[:, 2] == 0))[0]) for i in range(7)}
+
+    def groups(xs):
+        vmask = np.zeros(len(P), dtype=bool)
+        vmask[[at[i] for i in xs]] = True
+        return vertex_groups(vmask, H)
+
+    def holding(vs):
+        return set(np.flatnonzero(np.isin(H, vs).any(axis=1)))
+
+    apart = groups([0, 2, 4])
+    assert len(apart) == 3 and all(v.size == 1 for v, _ in apart)
+    for v, hx in apart:
+        assert set(hx) == holding(v)
+    joined = groups([0, 1, 2, 4])
+    assert [v.size for v, _ in joined] == [3, 1]
+    assert set(joined[0][0]) == {at[0], at[1], at[2]} and set(joined[0][1]) == holding(joined[0][0])
+    assert len(joined[0][1]) == 3 and set(joined[1][1]) == holding([at[4]]) and len(joined[1][1]) == 2
+    assert not set(joined[0][1]) & set(joined[1][1])
+
+
+def test_a_group_rises_while_the_lowest_cannot():
+    """A 9 x 3 x 3 grid sheared alike (every hex at 0.857): on the left one interior vertex moves, every other vertex
+    there is pinned (its hexes' corners away from it cannot rise); on the right every vertex moves. Two groups, one
+    program each a round: the right's hexes rise past 0.88 while the left's stay; one program for both (the steps
+    before) lifted nothing, the pinned corners holding its common lift at 0. On two threads the same mesh, bit for
+    bit."""
+    from hexsos_plugins.kernel.pool import threads_for
+
+    P, H = structured_grid(9, 3, 3)
+    h = P[:, 0].max() / 9
+    Q = P.copy()
+    Q[:, 0] += 0.6 * P[:, 1]
+    mv = P[:, 0] > 5.5 * h
+    inner = (np.isclose(P[:, 0], 2 * h) & (P[:, 1] > 0) & (P[:, 1] < P[:, 1].max()) & (P[:, 2] > 0)
+             & (P[:, 2] < P[:, 2].max()))
+    mv[np.flatnonzero(inner)[0]] = True
+    s0 = sample_scaled_jacobians(Q[H], "hexahedron").min(axis=1)
+    assert np.ptp(s0) < 1e-9
+    J, info = joint_steps(Q, H, mv, max_tries=10)
+    s1 = sample_scaled_jacobians(J[H], "hexahedron").min(axis=1)
+    right = mv[H].any(axis=1) & (P[H][:, :, 0].min(axis=1) > 4 * h)
+    assert info["programs"] == 2 * info["tries"] and info["steps"] > 0, info
+    assert s1[right].min() > s0.min() + 0.02 and s1[~right].min() == pytest.approx(s0.min(), abs=1e-12)
+    assert _certified(J, H)
+    with threads_for(2):
+        J2, info2 = joint_steps(Q, H, mv, max_tries=10)
+    assert np.array_equal(J, J2) and info2["steps"] == info["steps"]

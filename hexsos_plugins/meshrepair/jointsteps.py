@@ -1,22 +1,23 @@
 """The repair's last steps: raise the minimum scaled Jacobian by moving the vertices of the worst hexes together.
 
 The vertex steps (:mod:`hexsos_plugins.meshrepair.localopt`) stop where the worst hexes share vertices: each vertex
-alone cannot move without lowering a neighbour (cat_2 after them: eight hexes at 0.66-0.68 around a feature
-corner). Here every vertex of the hexes within :data:`SPAN` of the minimum moves at once, by sequential linear
-programming for the max-min: each step solves a linear program (HiGHS, through :func:`scipy.optimize.linprog`)
-for the move that maximizes ``t`` with every scaled Jacobian sample of every hex around those vertices, linearized,
-at least ``t`` plus :data:`KEEP` of its height above the minimum; within a trust region (a fraction of each vertex's
-mean edge length); in each vertex's freedom (inside any direction; boundary vertices within their band, as the
-vertex steps' last pass, the others where they are); with each hex's shortest / longest edge, linearized, above the
-lesser of its own and :data:`~hexsos_plugins.meshrepair.localopt.RATIO_FLOOR`, and its low Bernstein coefficients of
-det J (those of their split where the 27 come near 0: :func:`held_coefficients`), linearized, above half their value
-(the vertices of a hex with a coefficient near 0 take shorter steps: :data:`NEAR_ZERO_STEP`). The step is kept only
-where the mesh's least sample rises, every hex passes the test of validity (its coefficients positive, or those of
-their split: :mod:`hexsos_plugins.meshrepair.optimize`), no hex's edge ratio falls below its floor (less
-:data:`RATIO_SLACK`) and every banded
-vertex stays in its band (exactly, not linearized); otherwise half and a quarter of the step are tried, and the
-trust region halves (but after half of it kept: :data:`HALF_KEEPS`). So the steps end where they started or higher,
-valid, with no edge collapsed; the certificate is still the kernel's.
+alone cannot move without lowering a neighbour (cat_2 after them: eight hexes at 0.66-0.68 around a feature corner).
+Here every vertex of the hexes within :data:`SPAN` of the minimum moves at once, by sequential linear programming
+for the max-min. The vertices split into groups that no hex joins (:func:`vertex_groups`: a plateau's clusters), and
+each round solves one linear program per group (HiGHS, through :func:`scipy.optimize.linprog`, the groups' programs
+side by side on the kernel's threads): the move that maximizes ``t`` with every scaled Jacobian sample of every hex
+around the group's vertices, linearized, at least ``t`` plus :data:`KEEP` of its height above the group's least
+sample; within a trust region (a fraction of each vertex's mean edge length); in each vertex's freedom (inside any
+direction; boundary vertices within their band, as the vertex steps' last pass, the others where they are); with
+each hex's shortest / longest edge, linearized, above the lesser of its own and
+:data:`~hexsos_plugins.meshrepair.localopt.RATIO_FLOOR`, and its low Bernstein coefficients of det J (those of their
+split where the 27 come near 0: :func:`held_coefficients`), linearized, above half their value (the vertices of a
+hex with a coefficient near 0 take shorter steps: :data:`NEAR_ZERO_STEP`). A group's step is kept only where its
+least sample rises, every hex passes the test of validity (its coefficients positive, or those of their split:
+:mod:`hexsos_plugins.meshrepair.optimize`), no hex's edge ratio falls below its floor (less :data:`RATIO_SLACK`) and
+every banded vertex stays in its band (exactly, not linearized); otherwise half and a quarter of the step are tried,
+and the trust region (set by the group with the lowest hex) halves (but after half of it kept: :data:`HALF_KEEPS`).
+So the steps end where they started or higher, valid, with no edge collapsed; the certificate is still the kernel's.
 """
 
 from __future__ import annotations
@@ -31,8 +32,8 @@ from ..cells.quality import SAMPLES, hex_edge_ratio
 from .localopt import BAND_BELOW, RATIO_FLOOR, band_limits, vertex_freedoms
 from .optimize import SPLIT_BELOW, bernstein_matrix, bernstein_split_matrix, cof3, hex_bernstein_samples
 
-__all__ = ["joint_steps", "sample_gradients", "bernstein_gradients", "held_coefficients", "binding_rows", "next_delta",
-           "SPAN", "MAX_HEXES", "PLATEAU", "PLATEAU_HEXES", "RATIO_SLACK", "HALF_KEEPS", "KEEP"]
+__all__ = ["joint_steps", "vertex_groups", "sample_gradients", "bernstein_gradients", "held_coefficients",
+           "binding_rows", "next_delta", "SPAN", "MAX_HEXES", "PLATEAU", "PLATEAU_HEXES", "RATIO_SLACK", "HALF_KEEPS", "KEEP"]
 
 #: The hexes whose vertices move: within this of the minimum, the :data:`MAX_HEXES` lowest at most (measured on
 #: the published meshes after the vertex steps, 10 s each, with a box for the band: 50 reached as high as 100 and
@@ -201,6 +202,31 @@ def binding_rows(A, b, box, n_t):
     return A[keep], b[keep]
 
 
+def vertex_groups(vmask, H):
+    """The vertices of ``vmask`` (N,) bool split into groups no hex of ``H`` joins: two vertices of one hex are in one
+    group. Returns [(vertices, hexes)] (each group's vertices and the hexes holding any of them), the most vertices
+    first: the hexes of two groups are disjoint, so their programs are independent and their steps add up."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    N = vmask.size
+    hx = np.flatnonzero(vmask[H].any(axis=1))
+    Hx = H[hx]
+    on = vmask[Hx]
+    first = Hx[np.arange(hx.size), on.argmax(axis=1)]  # each hex's first moved vertex, joined to its others
+    A = coo_matrix((np.ones(int(on.sum())), (np.repeat(first, on.sum(axis=1)), Hx[on])), shape=(N, N))
+    _, label = connected_components(A, directed=False)
+    verts = np.flatnonzero(vmask)
+    order = np.argsort(label[verts], kind="stable")
+    keys, starts = np.unique(label[verts][order], return_index=True)
+    hex_label = label[first]
+    hex_order = np.argsort(hex_label, kind="stable")
+    bounds = np.searchsorted(hex_label[hex_order], keys)
+    groups = [(verts[order][a:b], hx[hex_order][c:d]) for a, b, c, d in
+              zip(starts, np.r_[starts[1:], verts.size], bounds, np.r_[bounds[1:], hx.size])]
+    return sorted(groups, key=lambda g: -g[0].size)
+
+
 def joint_steps(V, H, movable, *, boundary=None, deadline=None, target=None, band_below=BAND_BELOW, span=SPAN,
                 max_hexes=None, max_tries=500, go_on=None):
     """Raise the minimum scaled Jacobian of hexes H at V by joint moves of the vertices of the worst hexes (module
@@ -210,13 +236,15 @@ def joint_steps(V, H, movable, *, boundary=None, deadline=None, target=None, ban
     once the minimum reaches it; ``max_hexes``: the hexes of a program, at most (None: :data:`MAX_HEXES`, more on a
     larger plateau, :data:`PLATEAU`); ``go_on``: (``soft``, ``window``, ``gain``): past the time ``soft``
     (``time.perf_counter()``) the steps go on, up to ``deadline``, only while the minimum rose by at least ``gain``
-    over the last ``window`` seconds (None: they go on to ``deadline``). Returns (V', info) with ``steps`` (kept),
-    ``part_steps`` (of them, kept at a part of the program's move, :data:`STEP_PARTS`), ``tries`` (programs),
-    ``hexes`` (the cap on a program's hexes at the end), ``min_before``, ``min_after``, ``past_soft`` (seconds from
-    ``soft`` to the end of the last program, 0 if it ended before or without ``go_on``)."""
-    from scipy.optimize import linprog
-    from scipy.sparse import coo_matrix, diags
+    over the last ``window`` seconds (None: they go on to ``deadline``). Returns (V', info) with ``tries`` (rounds:
+    the worst hexes' vertices split into :func:`vertex_groups`, one program each, solved on the kernel's threads),
+    ``programs`` (solved), ``steps`` (kept, one per group), ``part_steps`` (of them, kept at a part of the
+    program's move, :data:`STEP_PARTS`), ``hexes`` (the cap on a round's hexes at the end), ``min_before``,
+    ``min_after``, ``past_soft`` (seconds from ``soft`` to the end of the last round, 0 if it ended before or
+    without ``go_on``)."""
+    from functools import partial
 
+    from ..kernel.pool import run_all
     from . import kernels as lo
 
     V = np.array(V, dtype=np.float64, copy=True)
@@ -226,7 +254,7 @@ def joint_steps(V, H, movable, *, boundary=None, deadline=None, target=None, ban
     G = np.ascontiguousarray(G)
     proj, _, _, _, size = vertex_freedoms(V, H, movable, boundary, 1.0)
     cell_sj = lo.cell_minima(V, H, G, float(factor))
-    info = {"steps": 0, "part_steps": 0, "tries": 0, "hexes": 0, "past_soft": 0.0,
+    info = {"steps": 0, "part_steps": 0, "tries": 0, "programs": 0, "hexes": 0, "past_soft": 0.0,
             "min_before": float(cell_sj.min()) if cell_sj.size else np.inf}
     if H.shape[0] == 0:
         info["min_after"] = info["min_before"]
@@ -241,11 +269,11 @@ def joint_steps(V, H, movable, *, boundary=None, deadline=None, target=None, ban
         bv = boundary.vertices
         proj[bv[~banded[bv]]] = 0.0
     w, U = np.linalg.eigh(proj)
-    B = U * (w > 0.5)[:, None, :]  # (N, 3, 3): the vertex's freedom, zero columns where it has none
+    fixed = {"B": U * (w > 0.5)[:, None, :],  # (N, 3, 3): the vertex's freedom, zero columns where it has none
+             "dims": (w > 0.5).astype(np.float64), "size": size, "banded": banded, "width": width,
+             "floor": np.minimum(hex_edge_ratio(V, H), RATIO_FLOOR)}
     can = (w > 0.5).any(axis=1)
-    dims = (w > 0.5).astype(np.float64)
-    floor = np.minimum(hex_edge_ratio(V, H), RATIO_FLOOR)
-    floor_kept = (1.0 - RATIO_SLACK) * floor
+    floor_kept = (1.0 - RATIO_SLACK) * fixed["floor"]
 
     # how far each banded vertex is from the input surface, curve or corner (its nearest point ``ref``)
     off = np.zeros(N)
@@ -255,7 +283,7 @@ def joint_steps(V, H, movable, *, boundary=None, deadline=None, target=None, ban
 
     delta = DELTA
     k_now = MAX_HEXES if max_hexes is None else int(max_hexes)
-    clock, reached = [time.perf_counter()], [info["min_before"]]  # the minimum after each program, and when
+    clock, reached = [time.perf_counter()], [info["min_before"]]  # the minimum after each round, and when
     while info["tries"] < max_tries and delta >= DELTA_MIN:
         now = time.perf_counter()
         if deadline is not None and now > deadline:
@@ -278,125 +306,174 @@ def joint_steps(V, H, movable, *, boundary=None, deadline=None, target=None, ban
         vmask = np.zeros(N, dtype=bool)
         vmask[H[low].ravel()] = True
         vmask &= can
-        verts = np.flatnonzero(vmask)
-        if verts.size == 0:
+        if not vmask.any():
             break
-        hx = np.flatnonzero(vmask[H].any(axis=1))
-        col = np.full(N, -1, dtype=np.int64)
-        col[verts] = np.arange(verts.size)
-        nv = 3 * verts.size
-        Hx = H[hx]
-        X = V[Hx]
-        nh = hx.size
-        # the samples: t - grad . dx <= sj
-        sj, g = sample_gradients(X)
-        K = sj.shape[1]
-        vid = np.broadcast_to(Hx[:, None, :], (nh, K, 8)).ravel()
-        row = np.broadcast_to(np.arange(nh * K).reshape(nh, K, 1), (nh, K, 8)).ravel()
-        r, c, v = _rows(-g.reshape(-1, 3), vid, col, B, row)
-        rows, cols, vals, rhs = [r, np.arange(nh * K)], [c, np.full(nh * K, nv)], [v, np.ones(nh * K)], [
-            (1.0 - KEEP) * (sj.ravel() - m)]
-        n_rows = nh * K
-        # low Bernstein coefficients (of the split where they are near 0, :func:`held_coefficients`):
-        # -grad . dx <= b / 2 (each row scaled by its hex's largest coefficient)
-        least, scale, (hh, bl, db) = held_coefficients(X, BERNSTEIN_LOW)
-        if hh.size:
-            coef = -(db / scale[hh, None, None])  # (P, 8, 3)
-            rowp = n_rows + np.arange(hh.size)
-            r, c, v = _rows(coef.reshape(-1, 3), Hx[hh].ravel(), col, B, np.repeat(rowp, 8))
-            rows.append(r), cols.append(c), vals.append(v)
-            rhs.append(0.5 * bl / scale[hh])
-            n_rows += hh.size
-        # edge floors: |e_i|^2 >= f^2 |e_j|^2 for the pairs near it, -grad . dx <= |e_i|^2 - f^2 |e_j|^2
-        e = X[:, _E[:, 1]] - X[:, _E[:, 0]]
-        l2 = (e * e).sum(axis=2)
-        f2 = (floor[hx] * 1.02) ** 2
-        pairs = np.argwhere(l2[:, :, None] < 4.0 * f2[:, None, None] * l2[:, None, :])
-        if pairs.size:
-            hh, i, j = pairs.T
-            nrm = l2[hh, j]
-            rowp = n_rows + np.arange(hh.size)
-            for vtx, sgn, vec in ((Hx[hh, _E[i, 1]], -2.0, e[hh, i]), (Hx[hh, _E[i, 0]], 2.0, e[hh, i]),
-                                  (Hx[hh, _E[j, 1]], 2.0 * f2[hh], e[hh, j]), (Hx[hh, _E[j, 0]], -2.0 * f2[hh], e[hh, j])):
-                sg = np.broadcast_to(sgn, hh.shape)
-                r, c, v = _rows(vec * (sg / nrm)[:, None], vtx, col, B, rowp)
-                rows.append(r), cols.append(c), vals.append(v)
-            rhs.append(np.maximum(l2[hh, i] - f2[hh] * nrm, 0.0) / nrm)
-            n_rows += hh.size
-        # the band: a vertex's distance from its nearest point of the input surface, curve or corner, linearized,
-        # at most the width (no farther out where it is past it already); a trial vertex left outside goes back in
-        # below
-        bvs = verts[banded[verts]]
-        out = bvs[off[bvs] > 1e-3 * width[bvs]]
-        if out.size:
-            u = (V[out] - ref[out]) / off[out, None]
-            rowp = n_rows + np.arange(out.size)
-            r, c, v = _rows(u, out, col, B, rowp)
-            rows.append(r), cols.append(c), vals.append(v)
-            rhs.append(np.maximum(width[out] - off[out], 0.0))
-            n_rows += out.size
-        # the vertices of a hex with a coefficient near 0 (r of its largest) move by at most NEAR_ZERO_STEP sqrt(r)
-        # of their edge length: the program holds that coefficient to first order only, and the second order, of
-        # the step squared, took it below 0 (kitten_with_bifur_3: r 5e-6, every step refused down to 1e-4 of the
-        # edge length; the steps stopped at 0.277, with this at 0.296-0.331)
-        rel = np.maximum(least, 0.0) / scale
-        rv = np.ones(N)
-        np.minimum.at(rv, Hx.ravel(), np.repeat(rel, 8))
-        dv = np.minimum(delta, NEAR_ZERO_STEP * np.sqrt(rv[verts]))
-        # scaled for the solver: each move in units of its trust region (bounds +-1, or 0 where the vertex has no
-        # such direction), t as its gain over m (HiGHS's dual simplex cycled for seconds on the unscaled program of
-        # a 4^3 grid near 0.996); entries below 1e-12 of the largest are rounding noise of zero gradients
-        lim = np.append((dv * size[verts])[:, None].repeat(3, axis=1).ravel(), 1.0)
-        Aub = coo_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
-                         shape=(n_rows, nv + 1)).tocsr() @ diags(lim)
-        Aub.data[np.abs(Aub.data) < 1e-12 * np.abs(Aub.data).max()] = 0.0
-        Aub.eliminate_zeros()
-        on = np.append(dims[verts].ravel(), 1.0)
-        b_ub = np.concatenate(rhs)
-        Aub, b_ub = binding_rows(Aub, b_ub, on[:-1], nh * K)
-        bounds = np.column_stack([-on, on])
-        bounds[-1] = (-np.inf, np.inf)
-        cost = np.zeros(nv + 1)
-        cost[-1] = -1.0
-        left = LP_SECONDS if deadline is None else max(min(LP_SECONDS, deadline - time.perf_counter()), 0.01)
-        res = linprog(cost, A_ub=Aub, b_ub=b_ub, bounds=bounds, method=LP_METHOD,
-                      options={"time_limit": left})
+        # one program per group of vertices no hex joins, each lifting its own least sample (solved side by side
+        # on the kernel's threads); the group with the lowest hex (the lead) sets the trust region
+        groups = vertex_groups(vmask, H)
+        lead = int(np.argmin([cell_sj[hx].min() for _, hx in groups]))
+        programs = [_program(V, H, verts, hx, float(cell_sj[hx].min()), fixed, off, ref, delta, boundary)
+                    for verts, hx in groups]
+        results = run_all([partial(_solve, p, deadline) for p in programs])
         info["tries"] += 1
-        kept_part = 0.0
-        if res.status == 0:
-            D = np.einsum("vad,vd->va", B[verts], (lim[:nv] * res.x[:nv]).reshape(-1, 3))
-            for part in STEP_PARTS:
-                W = V.copy()
-                W[verts] += part * D
-                if bvs.size:
-                    # back into the band where the polytope let a vertex out: toward its nearest point of the input
-                    # surface, curve or corner (the nearest point of every point between stays the same)
-                    C = boundary.closest(W, bvs)[bvs]
-                    d = W[bvs] - C
-                    dn = np.sqrt((d * d).sum(axis=1))
-                    cap = np.maximum(width[bvs], off[bvs])
-                    over = dn > cap
-                    W[bvs[over]] = C[over] + (cap[over] / dn[over])[:, None] * d[over]
-                    dn[over] = cap[over]
-                new = lo.cell_minima(W, np.ascontiguousarray(Hx), G, float(factor))
-                kept = bool(new.min() > m) and bool(np.all(hex_edge_ratio(W, Hx) >= floor_kept[hx]))
-                if kept:
-                    kept_part = part
-                    V = W
-                    cell_sj[hx] = new
-                    if bvs.size:
-                        ref[bvs], off[bvs] = C, dn
-                    info["steps"] += 1
-                    info["part_steps"] += part < 1.0
-                    break
-        delta = next_delta(delta, kept_part)
+        info["programs"] += len(programs)
+        parts = _take_steps(V, H, programs, [r.x if r.status == 0 else None for r in results], fixed, cell_sj, ref,
+                            off, boundary, floor_kept, lo.cell_minima, G, factor)
+        info["steps"] += int(np.count_nonzero(parts))
+        info["part_steps"] += int(np.count_nonzero((parts > 0) & (parts < 1.0)))
+        lead_part = float(parts[lead])
+        delta = next_delta(delta, lead_part)
         clock.append(time.perf_counter())
         reached.append(float(cell_sj.min()))
-        # each program's gain is the difference of two minima in a row
+        # each round's gain is the difference of two minima in a row
         if len(reached) > PATIENCE and sum(np.diff(reached[-1 - PATIENCE:])) < MIN_GAIN:
             break
     info["hexes"] = int(k_now)
-    if go_on is not None:  # until the last program's end
+    if go_on is not None:  # until the last round's end
         info["past_soft"] = max(clock[-1] - go_on[0], 0.0)
     info["min_after"] = float(cell_sj.min())
     return V, info
+
+
+def _program(V, H, verts, hx, m, fixed, off, ref, delta, boundary):
+    """The linear program of one group of vertices ``verts`` moving (module docstring) with the hexes ``hx`` around
+    them, whose least sample is ``m``: a dict of its arrays for :func:`_solve` and :func:`_take_steps`."""
+    from scipy.sparse import coo_matrix, diags
+
+    N = V.shape[0]
+    B, dims, size, banded, width, floor = (fixed[k] for k in ("B", "dims", "size", "banded", "width", "floor"))
+    col = np.full(N, -1, dtype=np.int64)
+    col[verts] = np.arange(verts.size)
+    nv = 3 * verts.size
+    Hx = H[hx]
+    X = V[Hx]
+    nh = hx.size
+    # the samples: t - grad . dx <= sj
+    sj, g = sample_gradients(X)
+    K = sj.shape[1]
+    vid = np.broadcast_to(Hx[:, None, :], (nh, K, 8)).ravel()
+    row = np.broadcast_to(np.arange(nh * K).reshape(nh, K, 1), (nh, K, 8)).ravel()
+    r, c, v = _rows(-g.reshape(-1, 3), vid, col, B, row)
+    rows, cols, vals, rhs = [r, np.arange(nh * K)], [c, np.full(nh * K, nv)], [v, np.ones(nh * K)], [
+        (1.0 - KEEP) * (sj.ravel() - m)]
+    n_rows = nh * K
+    # low Bernstein coefficients (of the split where they are near 0, :func:`held_coefficients`):
+    # -grad . dx <= b / 2 (each row scaled by its hex's largest coefficient)
+    least, scale, (hh, bl, db) = held_coefficients(X, BERNSTEIN_LOW)
+    if hh.size:
+        coef = -(db / scale[hh, None, None])  # (P, 8, 3)
+        rowp = n_rows + np.arange(hh.size)
+        r, c, v = _rows(coef.reshape(-1, 3), Hx[hh].ravel(), col, B, np.repeat(rowp, 8))
+        rows.append(r), cols.append(c), vals.append(v)
+        rhs.append(0.5 * bl / scale[hh])
+        n_rows += hh.size
+    # edge floors: |e_i|^2 >= f^2 |e_j|^2 for the pairs near it, -grad . dx <= |e_i|^2 - f^2 |e_j|^2
+    e = X[:, _E[:, 1]] - X[:, _E[:, 0]]
+    l2 = (e * e).sum(axis=2)
+    f2 = (floor[hx] * 1.02) ** 2
+    pairs = np.argwhere(l2[:, :, None] < 4.0 * f2[:, None, None] * l2[:, None, :])
+    if pairs.size:
+        hh, i, j = pairs.T
+        nrm = l2[hh, j]
+        rowp = n_rows + np.arange(hh.size)
+        for vtx, sgn, vec in ((Hx[hh, _E[i, 1]], -2.0, e[hh, i]), (Hx[hh, _E[i, 0]], 2.0, e[hh, i]),
+                              (Hx[hh, _E[j, 1]], 2.0 * f2[hh], e[hh, j]), (Hx[hh, _E[j, 0]], -2.0 * f2[hh], e[hh, j])):
+            sg = np.broadcast_to(sgn, hh.shape)
+            r, c, v = _rows(vec * (sg / nrm)[:, None], vtx, col, B, rowp)
+            rows.append(r), cols.append(c), vals.append(v)
+        rhs.append(np.maximum(l2[hh, i] - f2[hh] * nrm, 0.0) / nrm)
+        n_rows += hh.size
+    # the band: a vertex's distance from its nearest point of the input surface, curve or corner, linearized, at
+    # most the width (no farther out where it is past it already); a trial vertex left outside goes back in
+    # (:func:`_take_steps`)
+    bvs = verts[banded[verts]]
+    out = bvs[off[bvs] > 1e-3 * width[bvs]]
+    if out.size:
+        u = (V[out] - ref[out]) / off[out, None]
+        rowp = n_rows + np.arange(out.size)
+        r, c, v = _rows(u, out, col, B, rowp)
+        rows.append(r), cols.append(c), vals.append(v)
+        rhs.append(np.maximum(width[out] - off[out], 0.0))
+        n_rows += out.size
+    # the vertices of a hex with a coefficient near 0 (r of its largest) move by at most NEAR_ZERO_STEP sqrt(r) of
+    # their edge length: the program holds that coefficient to first order only, and the second order, of the
+    # step squared, took it below 0 (kitten_with_bifur_3: r 5e-6, every step refused down to 1e-4 of the edge
+    # length; the steps stopped at 0.277, with this at 0.296-0.331)
+    rel = np.maximum(least, 0.0) / scale
+    rv = np.ones(N)
+    np.minimum.at(rv, Hx.ravel(), np.repeat(rel, 8))
+    dv = np.minimum(delta, NEAR_ZERO_STEP * np.sqrt(rv[verts]))
+    # scaled for the solver: each move in units of its trust region (bounds +-1, or 0 where the vertex has no such
+    # direction), t as its gain over m (HiGHS's dual simplex cycled for seconds on the unscaled program of a 4^3
+    # grid near 0.996); entries below 1e-12 of the largest are rounding noise of zero gradients
+    lim = np.append((dv * size[verts])[:, None].repeat(3, axis=1).ravel(), 1.0)
+    Aub = coo_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                     shape=(n_rows, nv + 1)).tocsr() @ diags(lim)
+    Aub.data[np.abs(Aub.data) < 1e-12 * np.abs(Aub.data).max()] = 0.0
+    Aub.eliminate_zeros()
+    on = np.append(dims[verts].ravel(), 1.0)
+    Aub, b_ub = binding_rows(Aub, np.concatenate(rhs), on[:-1], nh * K)
+    bounds = np.column_stack([-on, on])
+    bounds[-1] = (-np.inf, np.inf)
+    cost = np.zeros(nv + 1)
+    cost[-1] = -1.0
+    return {"verts": verts, "hx": hx, "m": m, "bvs": bvs, "lim": lim, "A": Aub, "b": b_ub, "bounds": bounds,
+            "cost": cost}
+
+
+def _solve(p, deadline):
+    """HiGHS on program ``p`` of :func:`_program`, for at most ``LP_SECONDS`` (and not past ``deadline``)."""
+    from scipy.optimize import linprog
+
+    left = LP_SECONDS if deadline is None else max(min(LP_SECONDS, deadline - time.perf_counter()), 0.01)
+    return linprog(p["cost"], A_ub=p["A"], b_ub=p["b"], bounds=p["bounds"], method=LP_METHOD,
+                   options={"time_limit": left})
+
+
+def _take_steps(V, H, programs, xs, fixed, cell_sj, ref, off, boundary, floor_kept, cell_minima, G, factor):
+    """The moves ``xs`` of the ``programs`` of :func:`_program` (None: not solved) taken where they hold: for each, the
+    first of :data:`STEP_PARTS` whose hexes' least sample is above the program's ``m``, every hex valid and above
+    its edge floor. The groups' vertices and hexes are disjoint, so one trial mesh serves them all. V, ``cell_sj``,
+    ``ref`` and ``off`` are updated in place; returns the part kept of each (0.0: refused)."""
+    width = fixed["width"]
+    parts = np.zeros(len(programs))
+    moves = {}
+    for i, (p, x) in enumerate(zip(programs, xs)):
+        if x is not None:
+            nv = 3 * p["verts"].size
+            moves[i] = np.einsum("vad,vd->va", fixed["B"][p["verts"]], (p["lim"][:nv] * x[:nv]).reshape(-1, 3))
+    for part in STEP_PARTS:
+        if not moves:
+            break
+        W = V.copy()
+        for i, D in moves.items():
+            W[programs[i]["verts"]] += part * D
+        bvs = np.concatenate([programs[i]["bvs"] for i in moves])
+        if bvs.size:
+            # back into the band where the polytope let a vertex out: toward its nearest point of the input surface,
+            # curve or corner (the nearest point of every point between stays the same)
+            C = boundary.closest(W, bvs)[bvs]
+            d = W[bvs] - C
+            dn = np.sqrt((d * d).sum(axis=1))
+            cap = np.maximum(width[bvs], off[bvs])
+            over = dn > cap
+            W[bvs[over]] = C[over] + (cap[over] / dn[over])[:, None] * d[over]
+            dn[over] = cap[over]
+        hx = np.concatenate([programs[i]["hx"] for i in moves])
+        Hx = np.ascontiguousarray(H[hx])
+        new = cell_minima(W, Hx, G, float(factor))
+        ok_edge = hex_edge_ratio(W, Hx) >= floor_kept[hx]
+        at_h, at_b = 0, 0
+        for i in list(moves):
+            p = programs[i]
+            nh, nb = p["hx"].size, p["bvs"].size
+            sl, bl = slice(at_h, at_h + nh), slice(at_b, at_b + nb)
+            at_h, at_b = at_h + nh, at_b + nb
+            if bool(new[sl].min() > p["m"]) and bool(ok_edge[sl].all()):
+                V[p["verts"]] = W[p["verts"]]
+                cell_sj[p["hx"]] = new[sl]
+                if nb:
+                    ref[p["bvs"]], off[p["bvs"]] = C[bl], dn[bl]
+                parts[i] = part
+                del moves[i]
+    return parts
