@@ -84,10 +84,6 @@ BOUNDARY_WEIGHT = 100.0  # w of stage 1's boundary penalty
 SURFACE_WEIGHT = 10.0  # of stage 1's term on the boundary quads (:meth:`Problem.surface_terms`)
 SURFACE_BETA = 0.01  # of stage 2's log-barrier on the corners of its held boundary quads (:meth:`Problem.hold_surface`)
 THETA_B = 3.0  # weight of the Bernstein barrier in stage 1 (bunny, sliding, measured: 1 -> 12 outer steps for one fold, min SJ 0.02 after stage 2; 30 -> 2 steps, 0.01-0.06; 3 -> 0.30)
-#: Stage 1's inner solve (one eps) stops when its cells' least determinant has not risen by STALL_GAIN of itself over
-#: the last STALL iterations: the next outer step's eps moves on from there
-STALL = 50
-STALL_GAIN = 1e-3
 #: Stage 1's corner term on a block of this many cells and more runs in UNTANGLE_PARTS parts on the kernel's threads
 #: (``repair(..., jobs=)``; ``hexsos repair`` uses every core): 34,880 hexes, 33 ms in one thread, 19 ms in 4 parts
 #: on 2 threads
@@ -417,7 +413,6 @@ class Problem:
                                               g, True)
                 total += e
                 dmin = min(dmin, d)
-        self._last_cell_dmin = dmin
         if self.surface is not None:
             e, d = self.surface_terms(V, eps, g)
             total += e
@@ -717,13 +712,6 @@ def untangle(prob: Problem, *, max_outer=60, max_iter=300, deadline=None, on_ste
                 on_step("untangle", prob.full(state["x"]))
             if deadline is not None and time.perf_counter() > deadline:
                 raise _InnerStop
-            # stop the inner solve where the cells' least determinant has stalled: the next outer step's eps moves on
-            seen = state.setdefault("dmin", [])
-            seen.append(prob._last_cell_dmin)
-            if STALL and len(seen) > STALL:
-                before = max(seen[:-STALL])
-                if max(seen[-STALL:]) <= before + STALL_GAIN * abs(before):
-                    raise _InnerStop
             # stop the inner solve once the current point is untangled (checked on the coordinates)
             if prob._last_dmin > 0:
                 V = prob.full(state["x"])
