@@ -45,13 +45,16 @@ RATIO_FLOOR = SHORT_EDGE_RATIO
 
 
 def _incidence(H, N):
+    """The cells (rows of ``H``: hexes, or boundary quads) at each of the N vertices, CSR: (ptr (N + 1,), the cells
+    (inc), the vertex's corner in each (loc))."""
+    k = H.shape[1]
     flat = H.ravel()
     order = np.argsort(flat, kind="stable")
     ptr = np.zeros(N + 1, dtype=np.int64)
     np.add.at(ptr, flat + 1, 1)
     ptr = np.cumsum(ptr)
-    inc = (order // 8).astype(np.int64)
-    loc = (order % 8).astype(np.int64)
+    inc = (order // k).astype(np.int64)
+    loc = (order % k).astype(np.int64)
     return ptr, inc, loc
 
 
@@ -162,9 +165,7 @@ def straighten_quads(V, H, movable, boundary, *, degrees=None, rounds=20, tries=
     m = float(lo.cell_minima(V, H, G, float(factor)).min())
     floor = np.minimum(hex_edge_ratio(V, H), RATIO_FLOOR)
     ptr, inc, _ = _incidence(H, N)
-    qflat = quads.ravel()
-    qorder = np.argsort(qflat, kind="stable")
-    qptr = np.searchsorted(qflat[qorder], np.arange(N + 1))
+    qptr, qinc, _ = _incidence(quads, N)
     width = np.zeros(N)
     width[boundary.vertices] = boundary.band_width()
     size = _edge_length(V, H, N)
@@ -196,7 +197,7 @@ def straighten_quads(V, H, movable, boundary, *, degrees=None, rounds=20, tries=
                     continue
                 hx = inc[ptr[v]:ptr[v + 1]]
                 Hx = np.ascontiguousarray(H[hx])
-                around = qorder[qptr[v]:qptr[v + 1]] // 4
+                around = qinc[qptr[v]:qptr[v + 1]]
                 around = around[around != q]
                 keep_at = np.minimum(boundary.quad_tilt(V, around), bound)
                 x0 = V[v].copy()
