@@ -33,7 +33,8 @@ from .localopt import BAND_BELOW, RATIO_FLOOR, band_limits, vertex_freedoms
 from .optimize import SPLIT_BELOW, bernstein_matrix, bernstein_split_matrix, cof3, hex_bernstein_samples
 
 __all__ = ["joint_steps", "vertex_groups", "sample_gradients", "bernstein_gradients", "held_coefficients",
-           "binding_rows", "next_delta", "SPAN", "MAX_HEXES", "PLATEAU", "PLATEAU_HEXES", "RATIO_SLACK", "HALF_KEEPS", "KEEP"]
+           "binding_rows", "next_delta", "SPAN", "MAX_HEXES", "PLATEAU", "PLATEAU_HEXES", "RATIO_SLACK", "HALF_KEEPS",
+           "KEEP"]
 
 #: The hexes whose vertices move: within this of the minimum, the :data:`MAX_HEXES` lowest at most (measured on
 #: the published meshes after the vertex steps, 10 s each, with a box for the band: 50 reached as high as 100 and
@@ -311,14 +312,15 @@ def joint_steps(V, H, movable, *, boundary=None, deadline=None, target=None, ban
         # one program per group of vertices no hex joins, each lifting its own least sample (solved side by side
         # on the kernel's threads); the group with the lowest hex (the lead) sets the trust region
         groups = vertex_groups(vmask, H)
-        lead = int(np.argmin([cell_sj[hx].min() for _, hx in groups]))
-        programs = [_program(V, H, verts, hx, float(cell_sj[hx].min()), fixed, off, ref, delta, boundary)
-                    for verts, hx in groups]
+        least = [float(cell_sj[hx].min()) for _, hx in groups]
+        lead = int(np.argmin(least))
+        programs = [_program(V, H, verts, hx, lg, fixed, off, ref, delta, boundary)
+                    for (verts, hx), lg in zip(groups, least)]
         results = run_all([partial(_solve, p, deadline) for p in programs])
         info["tries"] += 1
         info["programs"] += len(programs)
         parts = _take_steps(V, H, programs, [r.x if r.status == 0 else None for r in results], fixed, cell_sj, ref,
-                            off, boundary, floor_kept, lo.cell_minima, G, factor)
+                            off, boundary, floor_kept)
         info["steps"] += int(np.count_nonzero(parts))
         info["part_steps"] += int(np.count_nonzero((parts > 0) & (parts < 1.0)))
         lead_part = float(parts[lead])
@@ -430,11 +432,15 @@ def _solve(p, deadline):
                    options={"time_limit": left})
 
 
-def _take_steps(V, H, programs, xs, fixed, cell_sj, ref, off, boundary, floor_kept, cell_minima, G, factor):
+def _take_steps(V, H, programs, xs, fixed, cell_sj, ref, off, boundary, floor_kept):
     """The moves ``xs`` of the ``programs`` of :func:`_program` (None: not solved) taken where they hold: for each, the
     first of :data:`STEP_PARTS` whose hexes' least sample is above the program's ``m``, every hex valid and above
     its edge floor. The groups' vertices and hexes are disjoint, so one trial mesh serves them all. V, ``cell_sj``,
     ``ref`` and ``off`` are updated in place; returns the part kept of each (0.0: refused)."""
+    from .kernels import cell_minima
+
+    G, factor = SAMPLES["hexahedron"]
+    G = np.ascontiguousarray(G)
     width = fixed["width"]
     parts = np.zeros(len(programs))
     moves = {}
