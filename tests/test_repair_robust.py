@@ -394,3 +394,34 @@ def test_rounds_undone_give_their_seconds_to_the_joint_steps(monkeypatch):
     r = hs.repair(P, H)
     assert seen["rounds"] >= 1 and r.success and seen["joint"], (seen, r.summary())
     assert dr.JOINT_SECONDS + 1.0 < seen["joint"][-1] <= dr.JOINT_SECONDS + 1.5 + 1.0, seen
+
+
+def test_the_untangling_stops_once_its_cells_are_valid_whatever_the_boundary_quads(monkeypatch):
+    """Stage 1's solve ends at its first iterate where every cell is valid: a boundary quad still turned against its
+    input normal (its term's least corner D below 0: on the Gmsh cone with 20% of its boundary slid, -0.13 to the
+    end) does not keep it running. The same stress-tested solid, its boundary sliding, untangled with the quads'
+    term as it is and with it reporting -1 at a corner: the same iterations and the same mesh. Reporting the quads'
+    least D as the cells' (as before) ran each solve to its end: the cone untangled in 27 s, 15 s now."""
+    from comparison.stress import graded_solid, stress
+    from hexsos_plugins.meshrepair.boundary import boundary_model
+    from hexsos_plugins.meshrepair.driver import cell_size
+
+    P, H = graded_solid(4)
+    bm = boundary_model(P, [("hexahedron", H)], tolerance=0.0)
+    free = np.ones(len(P), bool)
+    free[bm.corners] = False
+    Q = stress(P, H, frac=1.0, amp=2.0, seed=1)
+    Q[bm.vertices] = P[bm.vertices]
+
+    def run():
+        prob = op.Problem(Q, [("hexahedron", H)], [cell_size(P, "hexahedron", H)], free, slide=bm.slide(Q, free),
+                          surface=bm.surface())
+        assert any(b.any() for b in prob.bad_cells(Q))
+        return op.untangle(prob), prob.V
+
+    info, V = run()
+    assert info["success"]
+    surface_terms = op.Problem.surface_terms
+    monkeypatch.setattr(op.Problem, "surface_terms", lambda self, V, eps, g: (surface_terms(self, V, eps, g)[0], -1.0))
+    info2, V2 = run()
+    assert info2["success"] and info2["iterations"] == info["iterations"] and np.array_equal(V2, V)
