@@ -191,7 +191,7 @@ def test_repair_filter_in_pvpython(tmp_path):
     paper = repair(P, H, method="paper", boundary="free", rho=200.0)
     default = repair(P, H)
     assert paper.success and default.success
-    res, _ = run_pvpython(tmp_path, f"""
+    res, proc = run_pvpython(tmp_path, f"""
         import json
         from paraview.simple import *
         from paraview import servermanager
@@ -209,6 +209,8 @@ def test_repair_filter_in_pvpython(tmp_path):
         json.dump(out, open(OUT, "w"))
     """)
     same_scipy = scipy_version_in_pvpython(tmp_path) == scipy.__version__
+    # the joint steps' HiGHS option, which ParaView's older scipy leaves out, is not a warning the user sees
+    assert "solver options" not in proc.stderr and "Unrecognized options" not in proc.stderr, proc.stderr
     for name, expected in (("optimize", default), ("paper", paper)):
         assert set(res[name]["cell:hexsos_status"]) == {1}, name
         disp = np.array(res[name]["point:hexsos_displacement"])
@@ -216,10 +218,13 @@ def test_repair_filter_in_pvpython(tmp_path):
         # the default repair's joint steps solve their linear programs with the HiGHS of each Python's scipy
         # (Debian's 1.10 in ParaView, against this one's): on a max-min as flat as this grid's (min SJ 0.99999)
         # their optimal vertices differ, and so do the moves along the plateau (measured: 1.1e-3 at most, a 300th
-        # of an edge, with the minimum the same to 4e-8)
+        # of an edge, with the minimum the same to 4e-8); and a scipy that leaves out the options it does not know
+        # (1.10) solves them with HiGHS's crossover, which this one turns off (``jointsteps.LP_OPTIONS``): the
+        # minimum then the same to 1e-5 (measured 2026-12-06: 0.9999936 there, 0.9999913 here)
         tol = 1e-6 if name == "paper" or same_scipy else 1e-2 / 3
         assert np.allclose(disp, expected.displacement, rtol=0, atol=tol), name
-        assert res[name]["min_sj_after"] == pytest.approx(expected.stats["min_sj_after"], abs=1e-6), name
+        assert res[name]["min_sj_after"] == pytest.approx(expected.stats["min_sj_after"],
+                                                          abs=1e-6 if name == "paper" or same_scipy else 1e-5), name
         assert res[name]["edge_ratio_after"] == pytest.approx(expected.stats["edge_ratio_after"], abs=max(tol, 1e-6)), name
     assert res["optimize"]["min_sj_after"] > res["paper"]["min_sj_after"] + 0.2  # the point of the default
 

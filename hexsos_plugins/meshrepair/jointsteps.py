@@ -83,6 +83,7 @@ LP_METHOD = "highs-ipm"
 #: 0.500 / 0.500 / 0.496 with the crossover, 0.508 / 0.507 / 0.508 without it, 0.515 / 0.514 / 0.510 at 1e-6
 #: too; at 1e-5 0.515 / 0.494 / 0.511, and at 1e-4 HiGHS ends most programs without a solution (0.258). The
 #: other seven published meshes' medians the same or higher (cat_2 0.846 -> 0.851, its first start 0.791 -> 0.841).
+#: A scipy that leaves out the options it does not know (Debian's 1.10, in ParaView's Python) keeps the crossover.
 LP_OPTIONS = {"run_crossover": "off", "ipm_optimality_tolerance": 1e-6}
 #: A step refused whole is tried at these parts of it before the next program: the program's move raises the
 #: linearized minimum all along it, and a part often keeps a gain the whole loses at second order (38% of rockarm's
@@ -109,9 +110,11 @@ KEEP = 0.2
 PATIENCE = 8
 MIN_GAIN = 1e-4
 
-# scipy hands the options it does not know to HiGHS as they are, and warns that it does on every call
+# scipy hands the options it does not know to HiGHS as they are, and warns that it does on every call; an older
+# scipy (Debian's 1.10, ParaView's Python) leaves them out, HiGHS then ending with its crossover, and warns so
 warnings.filterwarnings("ignore", message=r"Unrecognized options detected: \{'run_crossover': 'off'\}\. These will be "
                         r"passed to HiGHS verbatim\.")
+warnings.filterwarnings("ignore", message=r"Unknown solver options: run_crossover$")
 
 _GB = hex_bernstein_samples()
 _TB = bernstein_matrix()
