@@ -268,10 +268,8 @@ def joint_steps(V, H, movable, *, boundary=None, deadline=None, target=None, ban
     V = np.array(V, dtype=np.float64, copy=True)
     H = np.ascontiguousarray(H, dtype=np.int64)
     N = V.shape[0]
-    G, factor = SAMPLES["hexahedron"]
-    G = np.ascontiguousarray(G)
     proj, _, _, _, size = vertex_freedoms(V, H, movable, boundary, 1.0)
-    cell_sj = lo.cell_minima(V, H, G, float(factor))
+    cell_sj = lo.hex_minima(V, H)
     info = {"steps": 0, "part_steps": 0, "tries": 0, "programs": 0, "hexes": 0, "past_soft": 0.0,
             "min_before": float(cell_sj.min()) if cell_sj.size else np.inf}
     if H.shape[0] == 0:
@@ -454,10 +452,8 @@ def _take_steps(V, H, programs, xs, fixed, cell_sj, ref, off, boundary, floor_ke
     first of :data:`STEP_PARTS` whose hexes' least sample is above the program's ``m``, every hex valid and above
     its edge floor. The groups' vertices and hexes are disjoint, so one trial mesh serves them all. V, ``cell_sj``,
     ``ref`` and ``off`` are updated in place; returns the part kept of each (0.0: refused)."""
-    from .kernels import cell_minima
+    from .kernels import hex_minima
 
-    G, factor = SAMPLES["hexahedron"]
-    G = np.ascontiguousarray(G)
     width = fixed["width"]
     parts = np.zeros(len(programs))
     moves = {}
@@ -484,7 +480,7 @@ def _take_steps(V, H, programs, xs, fixed, cell_sj, ref, off, boundary, floor_ke
             dn[over] = cap[over]
         hx = np.concatenate([programs[i]["hx"] for i in moves])
         Hx = np.ascontiguousarray(H[hx])
-        new = cell_minima(W, Hx, G, float(factor))
+        new = hex_minima(W, Hx)
         ok_edge = hex_edge_ratio(W, Hx) >= floor_kept[hx]
         at_h, at_b = 0, 0
         for i in list(moves):

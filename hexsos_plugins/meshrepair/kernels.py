@@ -18,6 +18,7 @@ import numpy as np
 from numba import njit, types
 
 from ..cells.hexahedron import EDGES
+from ..cells.quality import SAMPLES
 
 
 @njit(cache=True, inline="always")
@@ -931,6 +932,13 @@ def cell_minima(V, conn, G, factor):
         _cell_eval(V, conn, m, G, factor, 0.0, 1.0, ev2, E, C, XU, XV, XW, b, eu, ev, ew)
         out[m] = ev2[0]
     return out
+
+
+def hex_minima(V, H):
+    """:func:`cell_minima` of hexes H with the hexahedron's samples of :data:`hexsos_plugins.cells.quality.SAMPLES`
+    (the corners' scaled Jacobians, Verdict's)."""
+    G, factor = SAMPLES["hexahedron"]
+    return cell_minima(V, H, np.ascontiguousarray(G), float(factor))
 
 
 @njit(cache=True, inline="always")

@@ -160,9 +160,7 @@ def straighten_quads(V, H, movable, boundary, *, degrees=None, rounds=20, tries=
     if low.size == 0:
         return V, info
     low = low[np.argsort(boundary.quad_tilt(V, low), kind="stable")]
-    G, factor = SAMPLES["hexahedron"]
-    G = np.ascontiguousarray(G)
-    m = float(lo.cell_minima(V, H, G, float(factor)).min())
+    m = float(lo.hex_minima(V, H).min())
     floor = np.minimum(hex_edge_ratio(V, H), RATIO_FLOOR)
     ptr, inc, _ = _incidence(H, N)
     qptr, qinc, _ = _incidence(quads, N)
@@ -209,7 +207,7 @@ def straighten_quads(V, H, movable, boundary, *, degrees=None, rounds=20, tries=
                     dn = float(np.sqrt(d @ d))
                     V[v] = C + (width[v] / dn) * d if dn > width[v] else x
                     if (cos(q) > now
-                            and float(lo.cell_minima(V, Hx, G, float(factor)).min()) >= m
+                            and float(lo.hex_minima(V, Hx).min()) >= m
                             and bool(np.all(hex_edge_ratio(V, Hx) >= floor[hx]))
                             and bool(np.all(boundary.quad_tilt(V, around) >= keep_at))):
                         kept += 1
