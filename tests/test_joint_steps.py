@@ -456,3 +456,47 @@ def test_a_group_rises_while_the_lowest_cannot():
     with threads_for(2):
         J2, info2 = joint_steps(Q, H, mv, max_tries=10)
     assert np.array_equal(J, J2) and info2["steps"] == info["steps"]
+
+
+def test_split_layer_cuts_a_group_in_two_along_a_layer_of_vertices_that_stay():
+    """``split_layer`` on every vertex of a 6^3 grid: cut at the median of x (x = 3 edge lengths), the vertices of
+    the hexes across the cut on the lower side stay (the layer at x = 2, 49 vertices), and the rest falls into two
+    groups, x <= 1 and x >= 3; the next turns cut along y, then z, and after three turns the upper side stays (the
+    layer at x = 3)."""
+    from hexsos_plugins.meshrepair.jointsteps import split_layer, vertex_groups
+
+    P, H = structured_grid(6, 6, 6)
+    h = P[:, 0].max() / 6
+    vmask = np.ones(len(P), dtype=bool)
+    verts = np.arange(len(P))
+    for turn, axis, layer in ((0, 0, 2), (1, 1, 2), (2, 2, 2), (3, 0, 3), (4, 1, 3)):
+        stay = split_layer(P, H, verts, vmask, turn)
+        assert np.array_equal(np.flatnonzero(stay), np.flatnonzero(np.isclose(P[:, axis], layer * h))), turn
+        groups = vertex_groups(vmask & ~stay, H)
+        assert len(groups) == 2, turn
+        sides = sorted((P[v, axis].min(), P[v, axis].max()) for v, _ in groups)
+        assert sides[0][1] < layer * h - 0.5 * h and sides[1][0] > layer * h + 0.5 * h, (turn, sides)
+        assert not set(groups[0][1]) & set(groups[1][1])
+
+
+def test_on_two_threads_a_large_group_is_cut_in_two_and_still_rises(monkeypatch):
+    """The sheared 6^3 grid's plateau (72 hexes at 0.857, one group of 147 vertices) with
+    :data:`~hexsos_plugins.meshrepair.jointsteps.SPLIT_VERTICES` at 100: on two threads each round cuts it in two
+    (two programs a round, side by side), and the layers still rise past 0.95, valid; on one thread no cut (one
+    program a round, the steps as before)."""
+    from hexsos_plugins.kernel.pool import threads_for
+    from hexsos_plugins.meshrepair import jointsteps
+
+    P, H = structured_grid(6, 6, 6)
+    h = P[:, 1].max() / 6
+    Q = P.copy()
+    Q[:, 0] += 0.6 * np.clip(P[:, 1], 3 * h, 5 * h)
+    mv = np.ones(len(Q), dtype=bool)
+    monkeypatch.setattr(jointsteps, "SPLIT_VERTICES", 100)
+    one, info1 = joint_steps(Q, H, mv, max_tries=20)
+    assert info1["splits"] == 0 and info1["programs"] == info1["tries"], info1
+    with threads_for(2):
+        two, info2 = joint_steps(Q, H, mv, max_tries=20)
+    assert info2["splits"] == info2["tries"] and info2["programs"] >= 2 * info2["tries"], info2
+    assert info2["min_after"] > 0.95 and _certified(two, H), info2
+    assert sample_scaled_jacobians(two[H], "hexahedron").min() == pytest.approx(info2["min_after"], abs=1e-12)

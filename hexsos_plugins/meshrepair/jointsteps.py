@@ -3,9 +3,9 @@
 The vertex steps (:mod:`hexsos_plugins.meshrepair.localopt`) stop where the worst hexes share vertices: each vertex
 alone cannot move without lowering a neighbour (cat_2 after them: eight hexes at 0.66-0.68 around a feature corner).
 Here every vertex of the hexes within :data:`SPAN` of the minimum moves at once, by sequential linear programming
-for the max-min. The vertices split into groups that no hex joins (:func:`vertex_groups`: a plateau's clusters), and
-each round solves one linear program per group (HiGHS, through :func:`scipy.optimize.linprog`, the groups' programs
-side by side on the kernel's threads): the move that maximizes ``t`` with every scaled Jacobian sample of every hex
+for the max-min. The vertices split into groups that no hex joins (:func:`vertex_groups`: a plateau's clusters; on
+several threads the largest cut in two, :func:`split_layer`), and each round solves one linear program per group
+(HiGHS, through :func:`scipy.optimize.linprog`, the groups' programs side by side on the kernel's threads): the move that maximizes ``t`` with every scaled Jacobian sample of every hex
 around the group's vertices, linearized, at least ``t`` plus :data:`KEEP` of its height above the group's least
 sample; within a trust region (a fraction of each vertex's mean edge length); in each vertex's freedom (inside any
 direction; boundary vertices within their band, as the vertex steps' last pass, the others where they are); with
@@ -33,8 +33,8 @@ from ..cells.quality import SAMPLES, hex_edge_ratio
 from .localopt import BAND_BELOW, RATIO_FLOOR, band_limits, vertex_freedoms
 from .optimize import SPLIT_BELOW, bernstein_matrix, bernstein_split_matrix, cof3, hex_bernstein_samples
 
-__all__ = ["joint_steps", "vertex_groups", "sample_gradients", "bernstein_gradients", "held_coefficients",
-           "binding_rows", "next_delta", "SPAN", "MAX_HEXES", "PLATEAU", "PLATEAU_HEXES", "RATIO_SLACK", "HALF_KEEPS",
+__all__ = ["joint_steps", "vertex_groups", "split_layer", "sample_gradients", "bernstein_gradients", "held_coefficients",
+           "binding_rows", "next_delta", "SPAN", "SPLIT_VERTICES", "MAX_HEXES", "PLATEAU", "PLATEAU_HEXES", "RATIO_SLACK", "HALF_KEEPS",
            "KEEP"]
 
 #: The hexes whose vertices move: within this of the minimum, the :data:`MAX_HEXES` lowest at most (measured on
@@ -92,6 +92,15 @@ LP_OPTIONS = {"run_crossover": "off", "ipm_optimality_tolerance": 1e-6}
 #: Dolphin_2 0.775 in 10 s -> 0.776 in 7.1 s, kitten_with_bifur_3 0.350 -> 0.360 in their 10 s.
 STEP_PARTS = (1.0, 0.5, 0.25)
 LP_SECONDS = 0.5
+#: On more than one of the kernel's threads, a group of more vertices than this is split in two each round
+#: (:func:`split_layer`): its program held one thread for most of the round while the other solved the small groups'
+#: (kitten_with_bifur_3's plateau, one group of 700-940 vertices, programs of 2,000-3,000 columns taking 0.2-0.5 s,
+#: the other eight to twenty groups' together a tenth of that). The vertices of the hexes across the cut stay for
+#: that round, on one side or the other and across x, y, z in turn. kitten_with_bifur_3, as ``hexsos repair`` (every
+#: core; one run each, 2026-12-06): 0.515 / 0.514 / 0.512 / 0.515 without, 0.529 / 0.528 / 0.529 with 500 (400: 0.530 /
+#: 0.525; 300: 0.524; 200: 0.521; split again up to four times at 300: 0.515, eight at 150: 0.403, the steps ending
+#: on their patience while the lowest hex's vertices stayed). On one thread the split gained nothing (0.512 -> 0.508).
+SPLIT_VERTICES = 500
 #: After a step kept at half its move the trust region stays as it was (it halved before): the next program's
 #: move, of the same size, is again tried whole, then at half. From kitten_with_bifur_3's repaired mesh (0.444),
 #: 20 s of these steps reached 0.461 in 89 programs (33 kept at a part) with the region halved, 0.475 in 62 (49)
@@ -220,6 +229,23 @@ def binding_rows(A, b, box, n_t):
     return A[keep], b[keep]
 
 
+def split_layer(V, H, verts, vmask, turn):
+    """The vertices that stay in this round so that ``verts`` (one group of :func:`vertex_groups`) fall in two: cut
+    at the median of one coordinate (x, y, z in turn), the vertices of the hexes that hold moved vertices of both
+    sides stay on one side (the lower and the upper in turn). Returns (N,) bool."""
+    axis, side = turn % 3, (turn // 3) % 2
+    c = V[verts, axis]
+    lower = np.zeros(vmask.size, dtype=bool)
+    lower[verts[c < np.median(c)]] = True
+    on = vmask[H]
+    lo = (on & lower[H]).any(axis=1)
+    hi = (on & ~lower[H]).any(axis=1)
+    cross = H[lo & hi]
+    stay = np.zeros(vmask.size, dtype=bool)
+    stay[cross.ravel()] = True
+    return stay & vmask & (lower if side == 0 else ~lower)
+
+
 def vertex_groups(vmask, H):
     """The vertices of ``vmask`` (N,) bool split into groups no hex of ``H`` joins: two vertices of one hex are in one
     group. Returns [(vertices, hexes)] (each group's vertices and the hexes holding any of them), the most vertices
@@ -259,10 +285,10 @@ def joint_steps(V, H, movable, *, boundary=None, deadline=None, target=None, ban
     ``programs`` (solved), ``steps`` (kept, one per group), ``part_steps`` (of them, kept at a part of the
     program's move, :data:`STEP_PARTS`), ``hexes`` (the cap on a round's hexes at the end), ``min_before``,
     ``min_after``, ``past_soft`` (seconds from ``soft`` to the end of the last round, 0 if it ended before or
-    without ``go_on``)."""
+    without ``go_on``), ``splits`` (rounds whose largest group was split in two, :data:`SPLIT_VERTICES`)."""
     from functools import partial
 
-    from ..kernel.pool import run_all
+    from ..kernel.pool import run_all, threads
     from . import kernels as lo
 
     V = np.array(V, dtype=np.float64, copy=True)
@@ -270,7 +296,7 @@ def joint_steps(V, H, movable, *, boundary=None, deadline=None, target=None, ban
     N = V.shape[0]
     proj, _, _, _, size = vertex_freedoms(V, H, movable, boundary, 1.0)
     cell_sj = lo.hex_minima(V, H)
-    info = {"steps": 0, "part_steps": 0, "tries": 0, "programs": 0, "hexes": 0, "past_soft": 0.0,
+    info = {"steps": 0, "part_steps": 0, "tries": 0, "programs": 0, "hexes": 0, "past_soft": 0.0, "splits": 0,
             "min_before": float(cell_sj.min()) if cell_sj.size else np.inf}
     if H.shape[0] == 0:
         info["min_after"] = info["min_before"]
@@ -298,6 +324,7 @@ def joint_steps(V, H, movable, *, boundary=None, deadline=None, target=None, ban
         off[bidx] = np.sqrt(((V[bidx] - ref[bidx]) ** 2).sum(axis=1))
 
     delta = DELTA
+    split = threads() > 1
     k_now = MAX_HEXES if max_hexes is None else int(max_hexes)
     clock, reached = [time.perf_counter()], [info["min_before"]]  # the minimum after each round, and when
     while info["tries"] < max_tries and delta >= DELTA_MIN:
@@ -327,6 +354,11 @@ def joint_steps(V, H, movable, *, boundary=None, deadline=None, target=None, ban
         # one program per group of vertices no hex joins, each lifting its own least sample (solved side by side
         # on the kernel's threads); the group with the lowest hex (the lead) sets the trust region
         groups = vertex_groups(vmask, H)
+        if split and groups[0][0].size > SPLIT_VERTICES:
+            # the largest group in two, side by side on two threads (its program alone held one thread a round)
+            vmask &= ~split_layer(V, H, groups[0][0], vmask, info["tries"])
+            groups = vertex_groups(vmask, H)
+            info["splits"] += 1
         least = [float(cell_sj[hx].min()) for _, hx in groups]
         lead = int(np.argmin(least))
         programs = [_program(V, H, verts, hx, lg, fixed, off, ref, delta, boundary)
