@@ -247,6 +247,51 @@ def test_an_untangling_out_of_time_hands_over_to_algorithm_2_and_the_quality_sta
     assert not r2.success and _not_valid(r2.points, H).size and "did not finish" in r2.message
 
 
+def test_an_untangling_slow_to_finish_tries_algorithm_2_once_and_goes_on_from_where_it_was(monkeypatch):
+    """``driver.PAPER_TRY_SECONDS``: an untangling not done by then hands its mesh to the paper's Algorithm 2 once.
+    The torus of tetrahedra split into hexes with 30% of its boundary vertices slid 1.5 edge lengths (the 117,396-hex
+    case of the README at 1,296 hexes): the vertex steps leave it tangled and the barrier takes over. Tried after 2 s
+    (of the barrier's 4-5 s here), Algorithm 2 certifies it in a few outer iterations and the quality stages go on
+    from its mesh; where Algorithm 2 leaves the mesh as it was (replaced here by one that moves nothing, tried after
+    the barrier's first iteration), the untangling goes on from where it was, finishes, and Algorithm 2 is not run
+    again. Without the try (None) the barrier
+    untangles alone, in over a thousand iterations."""
+    from types import SimpleNamespace
+
+    from comparison.stress import slide_boundary, subdivided_solid
+    from hexsos_plugins.meshrepair import driver
+
+    P0, H = subdivided_solid("torus", 0.5)
+    P = slide_boundary(P0, H, frac=0.3, amp=1.5, seed=6)
+    for name, value in (("QUALITY_SECONDS", 2.0), ("LOCAL_SECONDS", 1.0), ("JOINT_SECONDS", 1.0),
+                        ("REPAIR_SECONDS", 1.0), ("PAPER_TRY_SECONDS", 2.0)):
+        monkeypatch.setattr(driver, name, value)
+    r = hs.repair(P, H)
+    stages = [e["stage"] for e in r.history]
+    assert r.success and r.stats["paper_tried"] and r.stats["fallback_used"] and not _not_valid(r.points, H).size
+    assert stages.count("fallback (paper)") == 1 and stages.index("fallback (paper)") < stages.index("local")
+    assert r.stats["untangle_iterations"] < 1000 and r.stats["min_sj_after"] > 0.25
+
+    real, calls = driver.repair_paper, []
+
+    def nothing(V, H, **kw):  # an Algorithm 2 that leaves every vertex where it was
+        calls.append(kw)
+        return SimpleNamespace(points=np.array(V, dtype=np.float64, copy=True))
+
+    monkeypatch.setattr(driver, "repair_paper", nothing)
+    monkeypatch.setattr(driver, "PAPER_TRY_SECONDS", 1e-3)  # after the barrier's first iteration
+    r2 = hs.repair(P, H, min_sj=0.05)  # (the untangling is what is looked at: the quality stages end early)
+    assert len(calls) == 1 and calls[0]["callback"] is not None  # the try, with its budget
+    assert r2.success and r2.stats["paper_tried"] and not r2.stats["fallback_used"] and r2.stats["untangled"]
+    assert "fallback (paper)" not in [e["stage"] for e in r2.history] and r2.stats["untangle_iterations"] > 1
+    assert not _not_valid(r2.points, H).size
+    monkeypatch.setattr(driver, "repair_paper", real)
+    monkeypatch.setattr(driver, "PAPER_TRY_SECONDS", None)
+    r3 = hs.repair(P, H, min_sj=0.05)
+    assert r3.success and not r3.stats["paper_tried"] and not r3.stats["fallback_used"]
+    assert r3.stats["untangle_iterations"] > 1000
+
+
 def test_a_folded_boundary_of_a_subdivided_solid_is_repaired_near_its_surface(folded_torus):
     P, H = folded_torus
     r = hs.repair(P, H, time_limit=8)

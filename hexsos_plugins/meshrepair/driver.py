@@ -113,6 +113,11 @@ JOINT_MIN_SECONDS = 3.0
 #: Seconds for stage 1 without a time limit: an untangling not done by then does not finish (kitten_with_bifur_3's
 #: barrier went on 456 s with more cells inverted than it started with); the paper's Algorithm 2 takes over
 UNTANGLE_SECONDS = 60.0
+#: After this many seconds of an untangling not done, the paper's Algorithm 2 is tried once from where it is, for
+#: up to ``PAPER_TRY_BUDGET`` seconds (its first outer iteration past them ends it); where it leaves every cell
+#: valid the quality stages go on from its mesh, else the untangling goes on from where it was (None: no try)
+PAPER_TRY_SECONDS = 20.0
+PAPER_TRY_BUDGET = 10.0
 #: After an untangling that did not finish, the paper's Algorithm 2 takes what it left; where it proves every hex
 #: valid but some have a Bernstein coefficient <= 0, vertex steps have this long to raise them before the quality
 #: stages go on
@@ -825,19 +830,42 @@ class _Optimize:
             self.stopped = True
             raise _Stopped
 
-    def _paper(self, V, pin, stage_s):
-        """The paper's Algorithm 2 from V (nodes of non-hex cells pinned): (W, hex result, others' results,
-        every cell proven valid); its seconds add to ``stage_s["fallback"]``."""
+    def _paper(self, V, pin, stage_s, seconds=None):
+        """The paper's Algorithm 2 from V (nodes of non-hex cells pinned), stopped after its first outer iteration
+        past ``seconds`` (None: no limit): (W, hex result, others' results, every cell proven valid); its seconds
+        add to ``stage_s["fallback"]``."""
         ts = time.perf_counter()
         fpin = pin.copy()
         for _, conn in self.others:
             fpin[conn.ravel()] = True
+        stop = None if seconds is None else (lambda entry, points: time.perf_counter() > ts + seconds)
         res = repair_paper(V, self.H, rho=self.rho, margin=self.margin, max_iter=100, relaxation=self.relaxation,
-                           pinned=fpin if fpin.any() else None, jobs=self.jobs, scheduler=self.scheduler)
+                           pinned=fpin if fpin.any() else None, jobs=self.jobs, scheduler=self.scheduler,
+                           callback=stop)
         rf, of = self._check(res.points)
         okf = bool((rf.status == 1).all()) and _other_counts(of) == 0
         stage_s["fallback"] = stage_s.get("fallback", 0.0) + time.perf_counter() - ts
         return res.points, rf, of, okf
+
+    def _paper_start(self, V, pin, movable, bm, size, full, stage_s, seconds=None):
+        """The paper's Algorithm 2 from V as a start for the quality stages (:meth:`_paper`): (its result, W), W its
+        mesh where every cell is proven valid with every Bernstein coefficient positive, else None. Where its hexes
+        are proven valid, some with a coefficient <= 0 (a bound, not the minimum), vertex steps have
+        ``PAPER_LIFT_SECONDS`` to raise those without taking any hex below its own."""
+        paper = W, rf, of, okf = self._paper(V, pin, stage_s, seconds)
+        feasible = okf and full.feasible_valid(W)
+        if okf and not feasible and len(self.blocks) == 1:
+            from .localopt import local_untangle
+
+            W2, _ = local_untangle(W, self.H, size, movable, boundary=bm if self.boundary == "slide" else None,
+                                   deadline=time.perf_counter() + PAPER_LIFT_SECONDS)
+            feasible = full.feasible_valid(W2)
+            if feasible:
+                W = W2
+        if not feasible:
+            return paper, None
+        self.history.append(self._entry("fallback (paper)", W, rf, of, stage_s["fallback"]))
+        return paper, W
 
     def run(self) -> RepairResult:
         from . import optimize as opt
@@ -950,18 +978,31 @@ class _Optimize:
                     self._step("untangle (local)", V)
             rings = self.rings
             tries = 0
+            # the paper's Algorithm 2 is tried once from where an untangling not done by then is
+            try_at = ts + PAPER_TRY_SECONDS if self.fallback and PAPER_TRY_SECONDS is not None else None
             while not untangled:
                 core = _dilate(bad, blocks, N, rings)
                 free = _vertices(core, blocks, N) & movable
                 prob = opt.Problem(V, blocks, sizes1, free, slide=bm.slide(V, free) if slide else None,
                                    surface=bm.surface() if slide else None)
-                info = opt.untangle(prob, max_outer=self.max_outer, deadline=deadline, on_step=self._step)
+                end = deadline if try_at is None else min(deadline, try_at)
+                info = opt.untangle(prob, max_outer=self.max_outer, deadline=end, on_step=self._step)
                 V = prob.V
                 for k in ("outer", "iterations"):
                     info1[k] += info.get(k, 0)
                 untangled = info["success"]
+                now = time.perf_counter()
+                if not untangled and try_at is not None and try_at < now < deadline and not self.stopped:
+                    try_at = None
+                    info1["paper_tried"] = True
+                    _, W = self._paper_start(V, pin, movable, bm, sizes1[0], full, stage_s, PAPER_TRY_BUDGET)
+                    if W is not None:
+                        V, untangled, used_fallback = W, True, True
+                        break
+                    bad = full.bad_cells(V)  # on from where the untangling was, with the same rings
+                    continue
                 tries += 1
-                if untangled or rings is None or (deadline is not None and time.perf_counter() > deadline):
+                if untangled or rings is None or (deadline is not None and now > deadline):
                     break
                 if free.sum() >= movable.sum() or tries >= 3:
                     rings = None
@@ -973,21 +1014,9 @@ class _Optimize:
                 # torus with 30% of its boundary vertices slid 1.5 edge lengths: 60 s of barrier left it tangled,
                 # Algorithm 2 certified it in 1.8 s); certified with every Bernstein coefficient positive, the
                 # quality stages go on from there (before, the repair ended at its min scaled Jacobian 0.000)
-                paper = W, rf, of, okf = self._paper(V, pin, stage_s)
-                feasible = okf and full.feasible_valid(W)
-                if okf and not feasible and len(blocks) == 1:
-                    # its hexes are proven valid, some with a Bernstein coefficient <= 0 (a bound, not the
-                    # minimum): vertex steps raise those without taking any hex below its own
-                    from .localopt import local_untangle
-
-                    W2, _ = local_untangle(W, H, sizes1[0], movable, boundary=bm if slide else None,
-                                           deadline=time.perf_counter() + PAPER_LIFT_SECONDS)
-                    feasible = full.feasible_valid(W2)
-                    if feasible:
-                        W = W2
-                if feasible:
+                paper, W = self._paper_start(V, pin, movable, bm, sizes1[0], full, stage_s)
+                if W is not None:
                     V, untangled, used_fallback = W, True, True
-                    self.history.append(self._entry("fallback (paper)", V, rf, of, stage_s["fallback"]))
             info1["success"] = untangled
             if slide and untangled and np.any(V != P0):
                 # back onto the input surface, each vertex as far as it goes with every cell still valid
@@ -1193,6 +1222,7 @@ class _Optimize:
             "untangled": bool(untangled), "untangle_outer": int(info1["outer"]),
             "untangle_iterations": int(info1["iterations"]), "smoothing_sweeps": int(info1.get("smoothing_sweeps", 0)),
             "harmonic_start": bool(info1.get("harmonic_start", False)),
+            "paper_tried": bool(info1.get("paper_tried", False)),
             "quality_rounds": int(info2.get("rounds", 0)), "quality_rounds_undone": int(info2.get("undone_rounds", 0)),
             "quality_iterations": int(info2.get("iterations", 0)), "fallback_used": used_fallback,
             "local_sweeps": int(self.local_info.get("sweeps", 0)), "local_steps": int(self.local_info.get("steps", 0)),
