@@ -254,8 +254,7 @@ def test_an_untangling_slow_to_finish_tries_algorithm_2_once_and_goes_on_from_wh
     (of the barrier's 4-5 s here), Algorithm 2 certifies it in a few outer iterations and the quality stages go on
     from its mesh; where Algorithm 2 leaves the mesh as it was (replaced here by one that moves nothing, tried after
     the barrier's first iteration), the untangling goes on from where it was, finishes, and Algorithm 2 is not run
-    again. Without the try (None) the barrier
-    untangles alone, in over a thousand iterations."""
+    again. Without the try (None) the barrier untangles alone, in over a thousand iterations."""
     from types import SimpleNamespace
 
     from comparison.stress import slide_boundary, subdivided_solid

@@ -5,12 +5,12 @@ alone cannot move without lowering a neighbour (cat_2 after them: eight hexes at
 Here every vertex of the hexes within :data:`SPAN` of the minimum moves at once, by sequential linear programming
 for the max-min. The vertices split into groups that no hex joins (:func:`vertex_groups`: a plateau's clusters; on
 several threads the largest cut in two, :func:`split_layer`), and each round solves one linear program per group
-(HiGHS, through :func:`scipy.optimize.linprog`, the groups' programs side by side on the kernel's threads): the move that maximizes ``t`` with every scaled Jacobian sample of every hex
-around the group's vertices, linearized, at least ``t`` plus :data:`KEEP` of its height above the group's least
-sample; within a trust region (a fraction of each vertex's mean edge length); in each vertex's freedom (inside any
-direction; boundary vertices within their band, as the vertex steps' last pass, the others where they are); with
-each hex's shortest / longest edge, linearized, above the lesser of its own and
-:data:`~hexsos_plugins.meshrepair.localopt.RATIO_FLOOR`, and its low Bernstein coefficients of det J (those of their
+(HiGHS, through :func:`scipy.optimize.linprog`, the groups' programs side by side on the kernel's threads): the
+move that maximizes ``t`` with every scaled Jacobian sample of every hex around the group's vertices, linearized, at
+least ``t`` plus :data:`KEEP` of its height above the group's least sample; within a trust region (a fraction of
+each vertex's mean edge length); in each vertex's freedom (inside any direction; boundary vertices within their
+band, as the vertex steps' last pass, the others where they are); with each hex's shortest / longest edge,
+linearized, above the lesser of its own and :data:`~hexsos_plugins.meshrepair.localopt.RATIO_FLOOR`, and its low Bernstein coefficients of det J (those of their
 split where the 27 come near 0: :func:`held_coefficients`), linearized, above half their value (the vertices of a
 hex with a coefficient near 0 take shorter steps: :data:`NEAR_ZERO_STEP`). A group's step is kept only where its
 least sample rises, every hex passes the test of validity (its coefficients positive, or those of their split:
@@ -33,9 +33,9 @@ from ..cells.quality import SAMPLES, hex_edge_ratio
 from .localopt import BAND_BELOW, RATIO_FLOOR, band_limits, vertex_freedoms
 from .optimize import SPLIT_BELOW, bernstein_matrix, bernstein_split_matrix, cof3, hex_bernstein_samples
 
-__all__ = ["joint_steps", "vertex_groups", "split_layer", "sample_gradients", "bernstein_gradients", "held_coefficients",
-           "binding_rows", "next_delta", "SPAN", "SPLIT_VERTICES", "MAX_HEXES", "PLATEAU", "PLATEAU_HEXES", "RATIO_SLACK", "HALF_KEEPS",
-           "KEEP"]
+__all__ = ["joint_steps", "vertex_groups", "split_layer", "sample_gradients", "bernstein_gradients",
+           "held_coefficients", "binding_rows", "next_delta", "SPAN", "SPLIT_VERTICES", "MAX_HEXES", "PLATEAU",
+           "PLATEAU_HEXES", "RATIO_SLACK", "HALF_KEEPS", "KEEP"]
 
 #: The hexes whose vertices move: within this of the minimum, the :data:`MAX_HEXES` lowest at most (measured on
 #: the published meshes after the vertex steps, 10 s each, with a box for the band: 50 reached as high as 100 and
