@@ -10,9 +10,10 @@ move that maximizes ``t`` with every scaled Jacobian sample of every hex around 
 least ``t`` plus :data:`KEEP` of its height above the group's least sample; within a trust region (a fraction of
 each vertex's mean edge length); in each vertex's freedom (inside any direction; boundary vertices within their
 band, as the vertex steps' last pass, the others where they are); with each hex's shortest / longest edge,
-linearized, above the lesser of its own and :data:`~hexsos_plugins.meshrepair.localopt.RATIO_FLOOR`, and its low Bernstein coefficients of det J (those of their
-split where the 27 come near 0: :func:`held_coefficients`), linearized, above half their value (the vertices of a
-hex with a coefficient near 0 take shorter steps: :data:`NEAR_ZERO_STEP`). A group's step is kept only where its
+linearized, above the lesser of its own and :data:`~hexsos_plugins.meshrepair.localopt.RATIO_FLOOR`, and its low
+Bernstein coefficients of det J (those of their split where the 27 come near 0: :func:`held_coefficients`),
+linearized, above half their value (the vertices of a hex with a coefficient near 0 take shorter steps:
+:data:`NEAR_ZERO_STEP`). A group's step is kept only where its
 least sample rises, every hex passes the test of validity (its coefficients positive, or those of their split:
 :mod:`hexsos_plugins.meshrepair.optimize`), no hex's edge ratio falls below its floor (less :data:`RATIO_SLACK`) and
 every banded vertex stays in its band (exactly, not linearized); otherwise half and a quarter of the step are tried,
