@@ -24,6 +24,15 @@ def _certified(P, H):
     return bool((hs.check(P, H).status == 1).all())
 
 
+def _sheared_layers():
+    """A 6^3 grid whose two middle layers of hexes are sheared alike: 72 hexes share the minimum (0.857)."""
+    P, H = structured_grid(6, 6, 6)
+    h = P[:, 1].max() / 6
+    Q = P.copy()
+    Q[:, 0] += 0.6 * np.clip(P[:, 1], 3 * h, 5 * h)
+    return Q, H
+
+
 def test_gradients_match_finite_differences():
     """The programs' rows: the scaled Jacobian samples and the Bernstein coefficients, and their gradients against
     central differences, on distorted hexes (a sign or an index wrong in either shows here)."""
@@ -307,10 +316,7 @@ def test_a_plateau_larger_than_a_program_grows_the_program():
     and lifts the layers past 0.95, valid."""
     from hexsos_plugins.meshrepair.jointsteps import MAX_HEXES
 
-    P, H = structured_grid(6, 6, 6)
-    h = P[:, 1].max() / 6
-    Q = P.copy()
-    Q[:, 0] += 0.6 * np.clip(P[:, 1], 3 * h, 5 * h)
+    Q, H = _sheared_layers()
     s0 = sample_scaled_jacobians(Q[H], "hexahedron").min(axis=1)
     assert ((s0 < s0.min() + 1e-9).sum() == 72) and MAX_HEXES < 72
     mv = np.ones(len(Q), dtype=bool)
@@ -333,10 +339,7 @@ def test_past_their_budget_the_steps_go_on_while_they_gain(monkeypatch):
 
     from hexsos_plugins.meshrepair import jointsteps
 
-    P, H = structured_grid(6, 6, 6)
-    h = P[:, 1].max() / 6
-    Q = P.copy()
-    Q[:, 0] += 0.6 * np.clip(P[:, 1], 3 * h, 5 * h)
+    Q, H = _sheared_layers()
     mv = np.ones(len(Q), dtype=bool)
 
     # HiGHS's own time limit runs on the wall clock: on a loaded machine a program cut by it in one run and not in
@@ -487,10 +490,7 @@ def test_on_two_threads_a_large_group_is_cut_in_two_and_still_rises(monkeypatch)
     from hexsos_plugins.kernel.pool import threads_for
     from hexsos_plugins.meshrepair import jointsteps
 
-    P, H = structured_grid(6, 6, 6)
-    h = P[:, 1].max() / 6
-    Q = P.copy()
-    Q[:, 0] += 0.6 * np.clip(P[:, 1], 3 * h, 5 * h)
+    Q, H = _sheared_layers()
     mv = np.ones(len(Q), dtype=bool)
     monkeypatch.setattr(jointsteps, "SPLIT_VERTICES", 100)
     one, info1 = joint_steps(Q, H, mv, max_tries=20)
