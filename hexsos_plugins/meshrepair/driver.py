@@ -1008,7 +1008,7 @@ class _Optimize:
                     rings = None
                 else:
                     rings = rings * 2
-                bad = opt.Problem(V, blocks, sizes, np.ones(N, dtype=bool)).bad_cells(V)
+                bad = full.bad_cells(V)
             if not untangled and self.fallback and not self.stopped:
                 # the untangling ran out of time or rings: the paper's Algorithm 2 on what it left (the 117,396-hex
                 # torus with 30% of its boundary vertices slid 1.5 edge lengths: 60 s of barrier left it tangled,
@@ -1204,7 +1204,7 @@ class _Optimize:
                                + ("(feature corners of the boundary: try boundary='free')" if self.boundary == "slide"
                                   else "(fixed boundary or pinned)"))
             if not untangled:
-                nb = _bad_count(opt.Problem(V, blocks, sizes, np.ones(N, dtype=bool)).bad_cells(V))
+                nb = _bad_count(full.bad_cells(V))
                 if nb:
                     why.append(f"the untangling did not finish: its own test, stricter than the certificate (no "
                                f"corner inverted, every Bernstein coefficient of det J > 0), fails on {nb} "
