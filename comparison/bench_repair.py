@@ -189,7 +189,7 @@ def _published_meshes(names=None):
         yield os.path.splitext(os.path.basename(rel))[0], read(path)
 
 
-def starts(n, names=None, jobs=0):
+def starts(n, names=None, jobs=0, feature_angle=45.0):
     """The default repair on each published mesh from ``n`` starts perturbed by 1e-12 of its diagonal (seeds 1..n):
     the certified minimum scaled Jacobian of each and their median (a change of rounding alone moves a single run's
     minimum by up to 0.08), the least shortest / longest edge of a hex of each, and the farthest boundary vertex
@@ -202,7 +202,7 @@ def starts(n, names=None, jobs=0):
         got, ratio, det, far = [], [], [], 0.0
         for seed in range(1, n + 1):
             P = m.points + 1e-12 * diag * np.random.default_rng(seed).standard_normal(m.points.shape)
-            r = repair(P, m.hexes, jobs=jobs)  # 0: every core, as `hexsos repair`
+            r = repair(P, m.hexes, jobs=jobs, feature_angle=feature_angle)  # 0: every core, as `hexsos repair`
             got.append(r.stats["min_sj_after"] if r.success else float("nan"))
             ratio.append(edge_ratio_summary(r.points, m.hexes)[0])
             det.append(r.stats["det_ratio_after"])
@@ -351,9 +351,10 @@ PUBLISHED = ["hexalab/rockarm.vtk", "bunny.vtk", "hexalab/cat_2.mesh", "hexalab/
              "hexalab/kitten_with_bifur_3.mesh"]
 
 
-def published(local=False, names=None, jobs=0):
-    """The default repair (``local=True``: ``repair(..., local=True)``) on the published meshes: one row each with
-    the counts, the scaled Jacobian before / after, Hausdorff, max move, moved vertices and seconds per stage."""
+def published(local=False, names=None, jobs=0, feature_angle=45.0):
+    """The default repair (``local=True``: ``repair(..., local=True)``; ``feature_angle``: the repair's) on the
+    published meshes: one row each with the counts, the scaled Jacobian before / after, Hausdorff, max move, moved
+    vertices and seconds per stage."""
     from comparison.stress import single_fold
 
     # the compiled loops load (or compile, once per installation) before the clock starts: a fold inside a hex and
@@ -368,7 +369,7 @@ def published(local=False, names=None, jobs=0):
     for name, m in _published_meshes(names):
         print(f"  {name}: {len(m.hexes)} hexes ...", file=sys.stderr, flush=True)
         t0 = time.perf_counter()
-        res = repair(m.points, m.hexes, local=local, jobs=jobs)  # 0: every core, as `hexsos repair`
+        res = repair(m.points, m.hexes, local=local, jobs=jobs, feature_angle=feature_angle)  # 0: every core
         t = time.perf_counter() - t0
         row = _row(name, m.points, m.hexes, [], res.points, m.hexes, t, res.success)
         row.update(stage_seconds=res.stats["stage_seconds"], moved=res.stats["moved_vertices"],
@@ -530,6 +531,8 @@ def main(argv=None):
                          "anywhere in the bounding box")
     ap.add_argument("--jobs", type=int, default=0, metavar="N",
                     help="--published: the repair's threads (default 0: every core, as `hexsos repair`)")
+    ap.add_argument("--feature-angle", type=float, default=45.0, metavar="DEGREES",
+                    help="--published (and --starts): the repair's feature angle (default 45, the repair's)")
     ap.add_argument("--corner-loops", action="store_true",
                     help="stage 1's corner term: the general loop against the hex loop the repair runs")
     ap.add_argument("--subdivided", action="store_true",
@@ -548,10 +551,10 @@ def main(argv=None):
         perturbed(args.mesh, jobs=args.jobs)
         return 0
     if args.published and args.starts > 0:
-        starts(args.starts, args.mesh, jobs=args.jobs)
+        starts(args.starts, args.mesh, jobs=args.jobs, feature_angle=args.feature_angle)
         return 0
     if args.published:
-        rows = published(args.local, args.mesh, jobs=args.jobs)
+        rows = published(args.local, args.mesh, jobs=args.jobs, feature_angle=args.feature_angle)
         if args.json:
             with open(args.json, "w") as f:
                 json.dump(rows, f, indent=1, default=float)

@@ -67,30 +67,44 @@ def test_a_cell_of_no_size_is_repaired():
         assert r.success and _not_valid(r.points, H).size == 0, (boundary, r.message)
 
 
-def test_collapsed_layer_repaired_when_free_and_reported_cell_by_cell_when_its_corners_are_pinned():
+def test_collapsed_layer_repaired_when_free_or_sliding_and_reported_cell_by_cell_when_the_caller_pins_its_corners():
     P, H = _collapsed_layer()
     assert _not_valid(P, H).size == 16
     r = hs.repair(P, H, boundary="free", max_iter=30)
     assert r.success and _not_valid(r.points, H).size == 0
-    # sliding: the two vertices at each collapsed box corner are pinned feature corners at one point, so the 4
-    # corner-column hexes cannot become valid; the rest can. Before, this raised ZeroDivisionError
+    # sliding: the two vertices at each collapsed box corner are feature corners at one point, so the 4 corner-column
+    # hexes cannot become valid while they are pinned; they slide on the surface instead (the 8 of them)
     r = hs.repair(P, H, boundary="slide", max_iter=30)
+    assert r.success and _not_valid(r.points, H).size == 0, r.message
+    assert r.stats["released_corners"] == 8
+    assert r.stats["boundary_max_distance"] < 0.01  # on the box's sides (edge length 0.25)
+    # the same corners pinned by the caller stay: reported cell by cell. Before, this raised ZeroDivisionError
+    from hexsos_plugins.meshrepair.boundary import boundary_model
+
+    pinned = np.zeros(len(P), dtype=bool)
+    pinned[boundary_model(P, [("hexahedron", H)]).corners] = True
+    r = hs.repair(P, H, boundary="slide", max_iter=30, pinned=pinned)
     left = _not_valid(r.points, H)
-    assert not r.success and list(left) == [1, 13, 49, 61]
-    assert "hexes 1, 13, 49, 61" in r.message and "two pinned vertices at one point" in r.message
+    assert not r.success and list(left) == [1, 13, 49, 61] and r.stats["released_corners"] == 0
+    assert "hexes 1, 13, 49, 61" in r.message
+    assert "two pinned vertices at one point (pinned by the caller)" in r.message
     assert np.isfinite(r.points).all()
 
 
 def test_cli_writes_the_best_mesh_and_exits_1_when_cells_are_left(tmp_path):
+    # the collapsed layer with its boundary fixed: the two vertices at each collapsed box corner stay at one point
     P, H = _collapsed_layer()
     src, out = tmp_path / "flat.vtu", tmp_path / "out.vtu"
     meshio.write(src, meshio.Mesh(P, [("hexahedron", H)]))
     p = subprocess.run([sys.executable, "-m", "hexsos_plugins", "repair", str(src), "-o", str(out), "--max-iter",
-                        "20"], capture_output=True, text=True, timeout=300)
+                        "20", "--boundary", "fixed"], capture_output=True, text=True, timeout=300)
     assert p.returncode == 1, p.stderr
-    assert "Traceback" not in p.stderr and "hexes 1, 13, 49, 61" in p.stdout + p.stderr
+    assert "Traceback" not in p.stderr and "two pinned vertices at one point (fixed boundary" in p.stdout
     m = meshio.read(out)
-    assert list(_not_valid(m.points, m.cells_dict["hexahedron"])) == [1, 13, 49, 61]
+    left = _not_valid(m.points, m.cells_dict["hexahedron"])
+    # what the file holds is what the report says: as many hexes, the first of them named
+    assert f"{left.size} hexes not proven valid (hexes {', '.join(str(c) for c in left[:4])}," in p.stdout
+    assert left.size and set(left) <= set(_not_valid(P, H))  # hexes of the collapsed layer
 
 
 def _damaged_grid():
@@ -469,3 +483,54 @@ def test_the_untangling_stops_once_its_cells_are_valid_whatever_the_boundary_qua
     monkeypatch.setattr(op.Problem, "surface_terms", lambda self, V, eps, g: (surface_terms(self, V, eps, g)[0], -1.0))
     info2, V2 = run()
     assert info2["success"] and info2["iterations"] == info["iterations"] and np.array_equal(V2, V)
+
+
+def _folded_inside_hex():
+    """One hex, positive at its corners (scaled Jacobian 0.21) but folded inside (the kernel proves it invalid):
+    its 8 vertices are feature corners of its own boundary (3 feature edges each)."""
+    P = np.array([[-0.49, 0.05, -0.51], [0.1, 0.12, 1.35], [0.58, 1.08, 0.54], [0.45, 1.22, 1.18],
+                  [1.48, -0.47, 0.37], [1.13, 0.4, 1.52], [0.74, 0.75, 0.44], [1.58, 1.32, 0.51]])
+    return P, structured_grid(1)[1]
+
+
+def test_stuck_corners_are_those_of_cells_their_other_vertices_cannot_untangle():
+    from hexsos_plugins.meshrepair.driver import stuck_corners
+
+    P, H = _folded_inside_hex()
+    everyone = np.ones(8, dtype=bool)
+    bad = [np.array([True])]
+    sizes = [np.ones(1)]
+    assert list(stuck_corners(P, [("hexahedron", H)], sizes, bad, ~everyone, everyone)) == list(range(8))
+    # a 2^3 grid whose middle vertex went through the top: the hexes around it fold, and that vertex alone (free)
+    # untangles them, whatever their 26 boundary vertices (all taken for pinned corners here)
+    P, H = structured_grid(2)
+    mid = 13
+    P[mid] = [0.5, 0.5, 1.3]
+    bad = np.zeros(8, dtype=bool)
+    bad[_not_valid(P, H)] = True
+    assert bad.sum() >= 4
+    corner = np.ones(len(P), dtype=bool)
+    corner[mid] = False
+    out = stuck_corners(P, [("hexahedron", H)], [np.ones(8)], [bad], ~corner, corner)
+    assert out is not None and out.size == 0
+
+
+def test_a_cell_folded_between_pinned_feature_corners_is_repaired_by_sliding_them(monkeypatch):
+    import hexsos_plugins.meshrepair.driver as drv
+    from hexsos_plugins.meshrepair.boundary import boundary_model
+    from hexsos_plugins.meshrepair.driver import cell_scaled_jacobians
+
+    P, H = _folded_inside_hex()
+    assert list(_not_valid(P, H)) == [0]
+    assert cell_scaled_jacobians(P, [("hexahedron", H)])[0][0] > 0.2
+    assert boundary_model(P, [("hexahedron", H)]).corners.size == 8
+    r = hs.repair(P, H)
+    assert r.success and _not_valid(r.points, H).size == 0, r.message
+    assert r.stats["released_corners"] == 8 and r.stats["untangled"]
+    assert "8 feature corners released" in r.summary()
+    # kept pinned (no corner released), the repair cannot move a vertex: it says so and returns the input
+    monkeypatch.setattr(drv, "stuck_corners", lambda *a, **k: np.zeros(0, dtype=np.int64))
+    r = hs.repair(P, H)
+    assert not r.success and list(_not_valid(r.points, H)) == [0]
+    assert "all 8 vertices pinned (feature corners of the boundary" in r.message
+    assert np.array_equal(r.points, P)

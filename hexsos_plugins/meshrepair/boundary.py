@@ -20,7 +20,7 @@ curve vertices.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -163,6 +163,13 @@ class BoundaryModel:
     @property
     def corners(self) -> np.ndarray:
         return self.vertices[self.kind == 2]
+
+    def released(self, corners) -> "BoundaryModel":
+        """This model with the feature corners ``corners`` (vertex indices) made surface vertices: they slide on
+        the input surface (normal: their vertex normal) where they were pinned; the rest unchanged."""
+        kind = self.kind.copy()
+        kind[np.isin(self.vertices, corners) & (kind == 2)] = 0
+        return replace(self, kind=kind)
 
     def turned_quads(self, V) -> np.ndarray:
         """(Q,) bool: the boundary quads whose vector area at V points against their input normal (turned over: the

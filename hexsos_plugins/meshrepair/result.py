@@ -111,6 +111,8 @@ def summary_optimize(res):
         f"{s['moved_vertices']} moved vertices of {s['points']}"
         + (f" ({s['moved_over_1pct']} by more than 1% of the bounding-box diagonal)" if "moved_over_1pct" in s else "")
         + (f", {s['pinned_vertices']} pinned" if s["pinned_vertices"] else "")
+        + (f", {s['released_corners']} feature corners released (they held cells not valid)"
+           if s.get("released_corners") else "")
         + (f"; local: only the {s['local_region_vertices']} vertices within {s['rings']} rings of the "
            f"cells not proven valid could move" if s.get("local") else ""),
     ] + ([f"surface           {s['turned_quads_before']} -> {s['turned_quads_after']} boundary quads turned over "
