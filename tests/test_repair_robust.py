@@ -494,7 +494,8 @@ def _folded_inside_hex():
     return P, structured_grid(1)[1]
 
 
-def test_stuck_corners_are_those_of_cells_their_other_vertices_cannot_untangle():
+def test_stuck_corners_are_those_of_cells_their_other_vertices_cannot_untangle(monkeypatch):
+    from hexsos_plugins.meshrepair import driver
     from hexsos_plugins.meshrepair.driver import stuck_corners
 
     P, H = _folded_inside_hex()
@@ -502,6 +503,10 @@ def test_stuck_corners_are_those_of_cells_their_other_vertices_cannot_untangle()
     bad = [np.array([True])]
     sizes = [np.ones(1)]
     assert list(stuck_corners(P, [("hexahedron", H)], sizes, bad, ~everyone, everyone)) == list(range(8))
+    # more bad cells near a corner than ``STUCK_CELLS``: no decision
+    monkeypatch.setattr(driver, "STUCK_CELLS", 0)
+    assert stuck_corners(P, [("hexahedron", H)], sizes, bad, ~everyone, everyone) is None
+    monkeypatch.undo()
     # a 2^3 grid whose middle vertex went through the top: the hexes around it fold, and that vertex alone (free)
     # untangles them, whatever their 26 boundary vertices (all taken for pinned corners here)
     P, H = structured_grid(2)

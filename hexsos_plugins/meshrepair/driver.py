@@ -373,7 +373,7 @@ def _spread_collapsed(V, blocks, sizes, movable):
     return V, masks
 
 
-def stuck_corners(V, blocks, sizes, bad, movable, corner, boundary=None, seconds=STUCK_SECONDS):
+def stuck_corners(V, blocks, sizes, bad, movable, corner, boundary=None, seconds=None):
     """The pinned feature corners (``corner`` (N,) bool) that keep cells from being untangled. The cells in ``bad``
     (per block (M,) bool) within a ring of a corner and a ring of cells around them are untangled on their own
     (every other cell left out), twice: with their ``movable`` vertices free, then with the corners free too, each
@@ -381,8 +381,8 @@ def stuck_corners(V, blocks, sizes, bad, movable, corner, boundary=None, seconds
     near their surface or curve, the corners on the surface the second time. Where a cell is left bad the first
     time but not the second, the corners hold it: those of the cells within a ring of it are returned (indices;
     dinopet_graded at 35 degrees: its own 6 corners released, min scaled Jacobian 0.510; the ring's 16, 0.751).
-    None where the test ran out of ``seconds`` or more than ``STUCK_CELLS`` such bad cells are near a corner (it
-    then decides nothing).
+    None where the test ran out of ``seconds`` (default ``STUCK_SECONDS``) or more than ``STUCK_CELLS`` such bad
+    cells are near a corner (it then decides nothing).
 
     Measured: cat_2 with a feature angle of 35 degrees has one hex between six corners and two interior vertices,
     positive at its corners (scaled Jacobian 0.116) but not by its Bernstein coefficients; dinopet_graded at 35
@@ -401,7 +401,7 @@ def stuck_corners(V, blocks, sizes, bad, movable, corner, boundary=None, seconds
     sub = [(name, conn[r]) for (name, conn), r in zip(blocks, region)]
     sub_sizes = [np.asarray(sz)[r] for sz, r in zip(sizes, region)]
     inside = _vertices([np.ones(c.shape[0], dtype=bool) for _, c in sub], sub, N)
-    end = time.perf_counter() + seconds
+    end = time.perf_counter() + (STUCK_SECONDS if seconds is None else seconds)
     left = []
     for k, free in enumerate((inside & movable, inside & (movable | corner))):
         model = None if boundary is None else boundary.released(np.flatnonzero(inside & corner)) if k else boundary
