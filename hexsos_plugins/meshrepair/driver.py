@@ -400,7 +400,7 @@ def stuck_corners(V, blocks, sizes, bad, movable, corner, boundary=None, seconds
     region = _dilate(seed, blocks, N, 1)
     sub = [(name, conn[r]) for (name, conn), r in zip(blocks, region)]
     sub_sizes = [np.asarray(sz)[r] for sz, r in zip(sizes, region)]
-    inside = _vertices([np.ones(c.shape[0], dtype=bool) for _, c in sub], sub, N)
+    inside = _vertices(region, blocks, N)
     end = time.perf_counter() + (STUCK_SECONDS if seconds is None else seconds)
     left = []
     for k, free in enumerate((inside & movable, inside & (movable | corner))):
