@@ -480,6 +480,11 @@ def test_split_layer_cuts_a_group_in_two_along_a_layer_of_vertices_that_stay():
         sides = sorted((P[v, axis].min(), P[v, axis].max()) for v, _ in groups)
         assert sides[0][1] < layer * h - 0.5 * h and sides[1][0] > layer * h + 0.5 * h, (turn, sides)
         assert not set(groups[0][1]) & set(groups[1][1])
+        # a group cut again, beside the other: on its own hexes as on the mesh's (the joint steps pass its own)
+        rest = vmask & ~stay
+        for t in range(3):
+            whole = split_layer(P, H, groups[0][0], rest, t)
+            assert whole.any() and np.array_equal(split_layer(P, H[groups[0][1]], groups[0][0], rest, t), whole)
 
 
 def test_on_two_threads_a_large_group_is_cut_in_two_and_still_rises(monkeypatch):

@@ -233,7 +233,8 @@ def binding_rows(A, b, box, n_t):
 def split_layer(V, H, verts, vmask, turn):
     """The vertices that stay in this round so that ``verts`` (one group of :func:`vertex_groups`) fall in two: cut
     at the median of one coordinate (x, y, z in turn), the vertices of the hexes that hold moved vertices of both
-    sides stay on one side (the lower and the upper in turn). Returns (N,) bool."""
+    sides stay on one side (the lower and the upper in turn). ``H``: the mesh's hexes or the group's alone (no hex
+    joins two groups: the same cut). Returns (N,) bool."""
     axis, side = turn % 3, (turn // 3) % 2
     c = V[verts, axis]
     lower = np.zeros(vmask.size, dtype=bool)
@@ -357,7 +358,7 @@ def joint_steps(V, H, movable, *, boundary=None, deadline=None, target=None, ban
         groups = vertex_groups(vmask, H)
         if split and groups[0][0].size > SPLIT_VERTICES:
             # the largest group in two, side by side on two threads (its program alone held one thread a round)
-            vmask &= ~split_layer(V, H, groups[0][0], vmask, info["tries"])
+            vmask &= ~split_layer(V, H[groups[0][1]], groups[0][0], vmask, info["tries"])  # its own hexes
             groups = vertex_groups(vmask, H)
             info["splits"] += 1
         least = [float(cell_sj[hx].min()) for _, hx in groups]
