@@ -67,6 +67,63 @@ def test_a_cell_of_no_size_is_repaired():
         assert r.success and _not_valid(r.points, H).size == 0, (boundary, r.message)
 
 
+def _tangled_grid():
+    """A 3^3 grid whose 8 inner vertices were moved a third of an edge length each way at random: 16 hexes
+    inverted."""
+    P, H = structured_grid(3)
+    inner = np.all((P > 0.01) & (P < 0.99), axis=1)
+    P[inner] += np.random.default_rng(1).standard_normal((int(inner.sum()), 3)) / 3
+    return P, H
+
+
+@pytest.mark.parametrize("size", [1e-140, 1e140])
+def test_a_mesh_far_from_unit_size_is_repaired_at_a_power_of_two_scale_and_certified_at_its_own(size):
+    from hexsos_plugins.meshrepair.scale import unit_scale
+
+    P, H = _tangled_grid()
+    P = P * size
+    assert _not_valid(P, H).size == 16
+    scale = unit_scale(P)
+    assert scale != 1.0 and np.frexp(scale)[0] == 0.5  # a power of two: P * scale is exact
+    assert unit_scale(P * scale) == 1.0 and unit_scale(_tangled_grid()[0]) == 1.0
+    seen = []
+    for boundary in ("fixed", "slide"):
+        r = hs.repair(P, H, boundary=boundary, callback=lambda e, V: seen.append(float(np.abs(V).max())))
+        # (at 1e-140 the cells' sizes cubed underflow: the optimizer stopped on a division by zero; at 1e140 the
+        # scaled Jacobians overflowed to NaN and the repair ended not certified)
+        assert r.success and r.stats["repair_scale"] == scale, r.message
+        assert _not_valid(r.points, H).size == 0 and r.stats["min_sj_after"] > 0.5
+        assert np.array_equal(r.displacement, r.points - P)
+        assert 0 < r.stats["max_displacement"] < 2 * size  # at the caller's scale
+        assert seen and max(seen) < 2 * size  # the callback saw the caller's scale
+        if boundary == "fixed":  # the boundary's vertices are the caller's numbers, bit for bit
+            G = structured_grid(3)[0]
+            outer = ~np.all((G > 0.01) & (G < 0.99), axis=1)
+            assert np.array_equal(r.points[outer], P[outer])
+
+
+def test_a_repair_at_another_scale_succeeds_only_with_the_certificate_at_the_callers():
+    from hexsos_plugins.meshrepair import scale as sc
+
+    P, H = _tangled_grid()
+    good = structured_grid(3)[0]
+
+    def run(points, callback):  # a run that says it succeeded and hands back (at its scale) points ...
+        return hs.RepairResult(points=points_back * 4.0, success=True, check=hs.check(points, H), history=[],
+                               stats={"min_det_before": 1.0}, displacement=np.zeros_like(points), message="ok")
+
+    def certify(V):
+        r = hs.check(V, H)
+        return r, None, int((r.status != 1).sum())
+
+    for points_back, ok in ((good, True), (P, False)):  # ... valid, or the tangled input
+        r = sc.rescaled(run, P, 4.0, None, certify)
+        assert r.success is ok and r.stats["invalid_after"] == (0 if ok else 16)
+        assert np.array_equal(r.points, points_back)
+        if not ok:
+            assert "16 cells are not proven valid" in r.message
+
+
 def test_collapsed_layer_repaired_when_free_or_sliding_and_reported_cell_by_cell_when_the_caller_pins_its_corners():
     P, H = _collapsed_layer()
     assert _not_valid(P, H).size == 16

@@ -4,7 +4,7 @@ Owns: the default method's driver (:mod:`.driver`: untangle, raise the quality, 
 paper's method), its energies and their compiled loops (:mod:`.optimize`, :mod:`.kernels`), the vertex-by-vertex
 steps (:mod:`.localopt`), the boundary model
 (:mod:`.boundary`: surface, features, sliding), the paper's Algorithms 1 and 2 (:mod:`.paper`), the one result
-type (:mod:`.result`), the options and the one rule for their defaults (:mod:`.options`), the boundary's distance
+type (:mod:`.result`), the repair of meshes far from unit size at a power-of-two scale (:mod:`.scale`), the options and the one rule for their defaults (:mod:`.options`), the boundary's distance
 to the input (:mod:`.fidelity`), the BLAS thread cap (:mod:`.blas`), and the repair of curved and hex-free
 meshes on det J's Bernstein coefficients (:mod:`.curved`, its compiled loops :mod:`.curvedkernels`, the
 untangling of their folded straight-sided skeleton first :mod:`.skeleton`).

@@ -65,6 +65,7 @@ from ..cells.quality import IDEAL, LINEAR_TYPES, SAMPLES, edge_ratio_summary, su
 from .options import BOUNDARY_MODES, DEFAULT_MARGIN, DEFAULT_RHO, METHODS, SURFACE_TOLERANCE, resolve_boundary
 from .paper import MEMORY, boundary_vertex_mask, hex_edge_length, repair_hex, repair_paper
 from .result import RepairResult, readonly
+from .scale import rescaled, unit_scale
 
 __all__ = ["repair", "repair_hex", "repair_paper", "RepairResult", "DEFAULT_MARGIN", "DEFAULT_RHO", "MEMORY",
            "hex_edge_length", "boundary_vertex_mask", "check_cells", "METHODS", "BOUNDARY_MODES",
@@ -535,6 +536,7 @@ def repair(points, hexes, *, cells=None, method: str = "optimize", boundary: str
     >>> r.success, r.stats["invalid_before"], r.stats["invalid_after"]
     (True, 1, 0)
     """
+    args = dict(locals())  # the arguments as given: a mesh far from unit size is repaired again, scaled (below)
     if method in _KERNEL_METHODS:  # the earlier signature: method was the kernel's
         method, kernel_method = "paper", method
     if method not in METHODS:
@@ -562,6 +564,9 @@ def repair(points, hexes, *, cells=None, method: str = "optimize", boundary: str
         raise InvalidInputError(f"max_iter: expected an integer >= 0, found {max_iter!r}")
     from .curved import curved_blocks, needs_curved, repair_curved
 
+    scale = unit_scale(points)
+    if scale != 1.0:  # far from unit size: repaired at a power-of-two scale, certified again at the caller's
+        return _rescaled_repair(args, scale)
     if method == "optimize" and needs_curved(hexes, cells):  # curved or hex-free meshes: :mod:`.curved`
         return repair_curved(points, curved_blocks(hexes, cells), boundary=boundary, min_sj=min_sj, max_iter=max_iter,
                              time_limit=time_limit, feature_angle=feature_angle, rings=rings, pinned=pinned,
@@ -595,6 +600,27 @@ def repair(points, hexes, *, cells=None, method: str = "optimize", boundary: str
                          time_limit=time_limit, feature_angle=feature_angle, rings=rings, fallback=fallback, rho=rho,
                          margin=margin, relaxation=relaxation, progress=progress, callback=callback, jobs=jobs,
                          scheduler=scheduler, local=bool(local), surface_tolerance=surface_tolerance).run()
+
+
+def _rescaled_repair(args, scale):
+    """:func:`repair` with ``args`` (its arguments) on ``points * scale``, mapped back and certified on the points
+    handed back (:func:`hexsos_plugins.meshrepair.scale.rescaled`)."""
+    from .curved import curved_blocks, needs_curved
+
+    kw = {k: v for k, v in args.items() if k not in ("points", "callback")}
+    hexes, cells, jobs, scheduler = args["hexes"], args["cells"], args["jobs"], args["scheduler"]
+    curved = args["method"] == "optimize" and needs_curved(hexes, cells)
+
+    def certify(V):
+        if curved:
+            r = check(V, curved_blocks(hexes, cells), jobs=jobs, scheduler=scheduler)
+            return r, None, int((r.status != 1).sum())
+        _, H = validate_arrays(V, hexes)
+        r = check(V, np.asarray(H, dtype=np.int64), jobs=jobs, scheduler=scheduler)
+        o = check_cells(V, _validate_cells(cells, V.shape[0]))
+        return r, o, int((r.status != 1).sum()) + _other_counts(o)
+
+    return rescaled(lambda P, cb: repair(P, callback=cb, **kw), args["points"], scale, args["callback"], certify)
 
 
 def _other_counts(res):
