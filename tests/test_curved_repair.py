@@ -162,6 +162,18 @@ def test_a_linear_tet_mesh_with_inverted_tets_is_repaired_and_certified():
             assert np.all(res.points[on, a] == face)
 
 
+def test_a_tet_mesh_far_from_unit_size_is_repaired_at_a_power_of_two_scale_and_certified_at_its_own():
+    P, T = _tet_grid(3)
+    P = P.astype(np.float64)
+    inner = np.flatnonzero(np.all((P > 0) & (P < 3), axis=1))
+    P[inner[0]] += [1.6, 0.3, 0.2]
+    for size in (1e-140, 1e140):
+        res = hs.repair(P * size, np.zeros((0, 8), dtype=np.int64), cells=[("tetra", T)])
+        assert res.stats["method"] == "curved" and res.stats["repair_scale"] != 1.0
+        assert res.success and (hs.check(res.points, [("tetra", T)]).status == 1).all(), res.message
+        assert res.stats["invalid_after"] == 0 and 0 < res.stats["max_displacement"] < 3 * size
+
+
 def _one_bad_tetra10():
     el = ELEMENTS["tetra10"]
     P = el.reference_nodes.copy()

@@ -516,7 +516,9 @@ def repair(points, hexes, *, cells=None, method: str = "optimize", boundary: str
         ``max_displacement``,
         ``mean_displacement``, ``moved_vertices``, ``pinned_vertices``, ``boundary``, ``method``,
         ``stage_seconds``, ``seconds`` (from the start, after ``load_seconds``: the compiled loops loaded, or
-        compiled on first use, :func:`hexsos_plugins.meshrepair.kernels.load`), ``message``, ...
+        compiled on first use, :func:`hexsos_plugins.meshrepair.kernels.load`), ``message``, ``repair_scale``
+        (only for a mesh whose diagonal is outside 2**-16..2**16: the power of two it was repaired at, then
+        certified again at its own scale, :mod:`hexsos_plugins.meshrepair.scale`), ...
 
     Raises
     ------
