@@ -100,6 +100,10 @@ def test_a_mesh_far_from_unit_size_is_repaired_at_a_power_of_two_scale_and_certi
             G = structured_grid(3)[0]
             outer = ~np.all((G > 0.01) & (G < 0.99), axis=1)
             assert np.array_equal(r.points[outer], P[outer])
+    # a point no cell uses, far away, does not set the scale (it would have put the cells at 1e-200 or 1e80)
+    Q = np.vstack([P, [[1e60, -1e60, 0.0]]])
+    r = hs.repair(Q, H)
+    assert r.success and r.stats["repair_scale"] == scale and np.array_equal(r.points[-1], Q[-1]), r.message
 
 
 def test_a_repair_at_another_scale_succeeds_only_with_the_certificate_at_the_callers():

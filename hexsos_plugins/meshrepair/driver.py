@@ -566,7 +566,11 @@ def repair(points, hexes, *, cells=None, method: str = "optimize", boundary: str
         raise InvalidInputError(f"max_iter: expected an integer >= 0, found {max_iter!r}")
     from .curved import curved_blocks, needs_curved, repair_curved
 
-    scale = unit_scale(points)
+    try:  # the points the cells use (malformed cells: scale 1, refused below)
+        used = [hexes] + [conn for _, conn in (cells or [])]
+    except (TypeError, ValueError):
+        used = None
+    scale = unit_scale(points, used) if used is not None else 1.0
     if scale != 1.0:  # far from unit size: repaired at a power-of-two scale, certified again at the caller's
         return _rescaled_repair(args, scale)
     if method == "optimize" and needs_curved(hexes, cells):  # curved or hex-free meshes: :mod:`.curved`

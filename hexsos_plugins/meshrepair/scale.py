@@ -30,17 +30,25 @@ SCALE_RANGE = 16
 _DIAG_KEYS = ("max_displacement", "mean_displacement", "boundary_max_distance")
 
 
-def unit_scale(points) -> float:
+def unit_scale(points, used=None) -> float:
     """1.0, or the power of two that takes the bounding-box diagonal of ``points`` (N, 3) into [1, 2) when it is
     outside [2**-SCALE_RANGE, 2**SCALE_RANGE] (and positive and finite; anything else: 1.0, for the repair's own
-    checks to refuse).
+    checks to refuse). ``used``: the indices of the points the cells use (a list of integer arrays), the others
+    left out (a point no cell uses, at 1e60 beside unit cells, would have scaled the cells to 1e-60).
 
     >>> unit_scale(np.array([[0.0, 0, 0], [1, 1, 1]])), unit_scale(np.array([[0.0, 0, 0], [3e-60, 0, 0]]))
     (1.0, 4.017345110647476e+59)
+    >>> unit_scale(np.array([[0.0, 0, 0], [1, 1, 1], [1e60, 0, 0]]), [np.array([0, 1])])
+    1.0
     """
     try:
         P = np.asarray(points, dtype=np.float64)
-    except (TypeError, ValueError):
+        if used is not None:
+            idx = np.unique(np.concatenate([np.asarray(u).ravel() for u in used] + [np.zeros(0, dtype=np.int64)]))
+            if idx.size == 0 or idx.dtype.kind not in "iu" or idx[0] < 0 or idx[-1] >= P.shape[0]:
+                return 1.0
+            P = P[idx]
+    except (TypeError, ValueError, IndexError):
         return 1.0
     if P.ndim != 2 or P.shape[0] == 0 or P.shape[1] != 3 or not np.isfinite(P).all():
         return 1.0
