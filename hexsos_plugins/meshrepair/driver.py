@@ -621,12 +621,16 @@ def _rescaled_repair(args, scale):
         if curved:
             r = check(V, curved_blocks(hexes, cells), jobs=jobs, scheduler=scheduler)
             return r, None, int((r.status != 1).sum())
-        _, H = validate_arrays(V, hexes)
-        r = check(V, np.asarray(H, dtype=np.int64), jobs=jobs, scheduler=scheduler)
-        o = check_cells(V, _validate_cells(cells, V.shape[0]))
+        r, o = _certificate(V, np.asarray(validate_arrays(V, hexes)[1], dtype=np.int64),
+                            _validate_cells(cells, V.shape[0]), jobs, scheduler)
         return r, o, int((r.status != 1).sum()) + _other_counts(o)
 
     return rescaled(lambda P, cb: repair(P, callback=cb, **kw), args["points"], scale, args["callback"], certify)
+
+
+def _certificate(V, H, others, jobs, scheduler):
+    """The kernel's check of the hexes and :func:`check_cells` of the other cells at V: (hexes' result, others')."""
+    return check(V, H, jobs=jobs, scheduler=scheduler), check_cells(V, others)
 
 
 def _other_counts(res):
@@ -885,8 +889,7 @@ class _Optimize:
         return W
 
     def _check(self, V):
-        r = check(V, self.H, jobs=self.jobs, scheduler=self.scheduler)
-        return r, check_cells(V, self.others)
+        return _certificate(V, self.H, self.others, self.jobs, self.scheduler)
 
     def _entry(self, stage, V, r, o, seconds):
         e = {"iteration": len(self.history), "stage": stage, "invalid": int((r.status == 0).sum()),
