@@ -28,11 +28,16 @@ from ..cells.elements import ELEMENTS
 from ..errors import DependencyError, InvalidInputError
 
 __all__ = ["boundary_faces", "interior_vertices", "BoundaryModel", "NearestPoints", "boundary_model", "Slide",
-           "quad_areas", "quad_corners", "size_floor", "TILT_DEGREES"]
+           "quad_areas", "quad_corners", "size_floor", "TILT_DEGREES", "DEVIATION_SAMPLES",
+           "LEASH_ROUNDS"]
 
 #: A boundary quad whose vector area is more than this many degrees from its input normal counts as tilted
 #: (:meth:`BoundaryModel.tilted_quads`): the repair's report counts them beside the quads turned over
 TILT_DEGREES = 60.0
+#: Points along a boundary triangle's edge, less one, where :meth:`BoundaryModel.deviation` measures (15 a triangle)
+DEVIATION_SAMPLES = 4
+#: Times :meth:`BoundaryModel.closest` pulls a leashed vertex toward its input position and back onto the surface
+LEASH_ROUNDS = 3
 
 
 def _faces_of(cells):
@@ -151,6 +156,7 @@ class BoundaryModel:
     quads: np.ndarray | None = None  # (Q, 4) the boundary quads, each ordered as seen from outside ...
     quad_normal: np.ndarray | None = None  # (Q, 3) ... its unit outward normal in the input (:func:`boundary_model`)
     quad_s2: np.ndarray | None = None  # (Q,) the mean squared boundary edge length at its vertices
+    leash: np.ndarray | None = None  # (B,) how far each may end from its input position (inf: any distance)
     trees: dict = field(default_factory=dict, repr=False, compare=False)  # kind -> NearestPoints, built once
 
     def nearest(self, P, kind):
@@ -212,7 +218,8 @@ class BoundaryModel:
 
     def closest(self, V, idx=None) -> np.ndarray:
         """V with the (given, else all) surface and curve vertices moved to the nearest point of the input surface
-        / curve, and corners to their input position."""
+        / curve, and corners to their input position; a leashed vertex (:meth:`leashed`) to the nearest such point
+        within its leash of its input position."""
         W = np.array(V, dtype=np.float64, copy=True)
         sel = np.ones(self.vertices.size, dtype=bool) if idx is None else np.isin(self.vertices, idx)
         for kind, F in ((0, self.surf_F), (1, self.feat_E)):
@@ -220,9 +227,36 @@ class BoundaryModel:
             if rows.size == 0 or F.shape[0] == 0:
                 continue
             W[rows] = self.nearest(W[rows], kind)[2]
+            if self.leash is not None:
+                W[rows] = self._held(W[rows], rows, kind)
         rows = self.vertices[(self.kind == 2) & sel]
         W[rows] = self.surf_V[rows]
         return W
+
+    def _held(self, C, rows, kind, rounds: int = LEASH_ROUNDS):
+        """C (k, 3), points of the surface (``kind`` 0) or curve (1) nearest to boundary vertices ``rows``, each
+        brought within its leash of its input position: toward it along the line, then back onto the surface, a few
+        times (on a curved surface one projection may leave it a little outside; its last point is inside)."""
+        R = self.leash[np.searchsorted(self.vertices, rows)]
+        C = np.array(C, dtype=np.float64, copy=True)
+        for k in range(rounds + 1):
+            A = self.surf_V[rows]
+            d = C - A
+            n = np.sqrt((d * d).sum(axis=1))
+            far = n > R
+            if not far.any():
+                break
+            pulled = A[far] + (R[far] / n[far])[:, None] * d[far]
+            C[far] = pulled if k == rounds else self.nearest(pulled, kind)[2]
+        return C
+
+    def leashed(self, vertices, radius) -> "BoundaryModel":
+        """This model with the boundary vertices ``vertices`` held within ``radius`` of their input positions in
+        every projection (:meth:`closest`, :meth:`closest_point`; their band, :meth:`project`, on top); the rest
+        unchanged."""
+        leash = np.full(self.vertices.size, np.inf) if self.leash is None else self.leash.copy()
+        leash[np.isin(self.vertices, vertices)] = float(radius)
+        return replace(self, leash=leash)
 
     def closest_point(self, x, v) -> np.ndarray:
         """(3,): the nearest point to ``x`` (3,) of boundary vertex ``v``'s input surface or curve, as :meth:`closest`
@@ -235,7 +269,37 @@ class BoundaryModel:
             return np.array(self.surf_V[v], dtype=np.float64)
         if (self.surf_F if kind == 0 else self.feat_E).shape[0] == 0:
             return np.array(x, dtype=np.float64)
-        return self.nearest(np.asarray(x, dtype=np.float64)[None], kind)[2][0]
+        C = self.nearest(np.asarray(x, dtype=np.float64)[None], kind)[2]
+        if self.leash is not None:
+            C = self._held(C, np.array([v]), kind)
+        return C[0]
+
+    def deviation(self, V, samples: int = DEVIATION_SAMPLES) -> np.ndarray:
+        """(T,): for each of the input's boundary triangles (``surf_F``), the largest distance between the input's
+        boundary surface and the one at V (the same triangles) found at it: points spread on each triangle
+        (``samples`` + 1 along an edge, the corners included), each at its exact distance to the other surface; a
+        triangle's deviation is the largest of its own points' on either surface and of the input's points nearest
+        to it at V (where a quad cuts across a crease of the input, the crease's points are far from the quad). The
+        largest is the sampled Hausdorff distance of :func:`hexsos_plugins.meshrepair.fidelity.boundary_fidelity`
+        (both directions), by place."""
+        F = self.surf_F
+        if F.shape[0] == 0:
+            return np.zeros(0)
+        n = int(samples)
+        i, j = np.meshgrid(np.arange(n + 1), np.arange(n + 1), indexing="ij")
+        keep = (i + j) <= n
+        a, b = i[keep] / n, j[keep] / n
+        w = np.stack([1.0 - a - b, a, b], axis=1)  # (s, 3) barycentric weights
+        owner = np.repeat(np.arange(F.shape[0]), w.shape[0])
+        S0 = np.einsum("sk,tkd->tsd", w, self.surf_V[F]).reshape(-1, 3)
+        S1 = np.einsum("sk,tkd->tsd", w, np.asarray(V, dtype=np.float64)[F]).reshape(-1, 3)
+        back = np.sqrt(self.nearest(S1, 0)[0])  # V's surface to the input's
+        d2, near, _ = NearestPoints(V, F)(S0)  # the input's surface to V's
+        fwd = np.sqrt(d2)
+        out = np.zeros(F.shape[0])
+        np.maximum.at(out, owner, np.maximum(back, fwd))
+        np.maximum.at(out, near, fwd)
+        return out
 
     def frames(self, V, idx):
         """For the surface and curve vertices among ``idx``: (rows, Q (k, 3, 3)), the projector onto the normal of
