@@ -374,7 +374,7 @@ def published(local=False, names=None, jobs=0, feature_angle=45.0):
         row = _row(name, m.points, m.hexes, [], res.points, m.hexes, t, res.success)
         row.update(stage_seconds=res.stats["stage_seconds"], moved=res.stats["moved_vertices"],
                    points=int(len(m.points)), moved_over_1pct=res.stats["moved_over_1pct"], load=os.getloadavg()[0],
-                   surface=TURNED[1](res, None))
+                   surface=TURNED[1](res, None), leash=res.stats.get("boundary_leash"))
         rows.append(row)
         print(f"  {name}: {t:.1f} s, certified {res.success}, min SJ {row['sj_after']['min']:.3f}, load "
               f"{row['load']:.1f}", file=sys.stderr, flush=True)
@@ -394,6 +394,17 @@ def published(local=False, names=None, jobs=0, feature_angle=45.0):
               f"({r['moved_over_1pct']:,}) | {a0:.4f} ({n0:,}) -> {a1:.4f} ({n1:,}) | {x} | "
               f"{r['surface']} | {parts} / "
               f"{r['seconds']:.1f} |")
+    for r in rows:
+        info = r.get("leash") or {}
+        if info.get("vertices"):
+            print(f"\n{r['mesh']}: the first run ended {100 * info['deviation']:.2f}% of the diagonal from the input "
+                  f"surface (sampled); {info['vertices']} boundary vertices there "
+                  + (f"held within {100 * info['radius']:g}% of their input positions in a second run of "
+                     f"{info['seconds']:.1f} s: " + ("not certified" if info["deviation_leashed"] is None else
+                                                     f"{100 * info['deviation_leashed']:.2f}%")
+                     + f", min SJ {info['min_sj_free']:.3f} -> {info['min_sj_leashed']:.3f}, "
+                     + ("kept (the stage seconds above are its own, the total both)" if info["kept"] else "not kept")
+                     if info.get("run") else f"not held ({info.get('why')})"))
     return rows
 
 

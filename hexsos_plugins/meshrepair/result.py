@@ -89,6 +89,22 @@ def sj_line(s):
     return line
 
 
+def _leash_lines(info):
+    """The report's line on the second run with boundary vertices held near their input positions, if it ran or
+    was due (:func:`hexsos_plugins.meshrepair.driver.repair`'s ``stats["boundary_leash"]``)."""
+    if not info or not info.get("vertices"):
+        return []
+    head = (f"boundary leash    the boundary ended {100 * info['deviation']:.2f}% of the diagonal from the input's; "
+            f"{info['vertices']} boundary vertices there")
+    if not info.get("run"):
+        return [head + f" were not held ({info.get('why', 'not run')})"]
+    return [head + f" held within {100 * info['radius']:g}% of it of their input positions in a second run: "
+            + (f"{100 * info['deviation_leashed']:.2f}%" if info["deviation_leashed"] is not None else "not certified")
+            + f", min SJ {info['min_sj_free']:.4f} -> {info['min_sj_leashed']:.4f}, "
+            + ("kept" if info["kept"] else "not kept (the first run's mesh is returned)")
+            + f" ({info['seconds']:.1f} s)"]
+
+
 def summary_optimize(res):
     s = res.stats
     other = ""
@@ -121,7 +137,7 @@ def summary_optimize(res):
           + (f"; {s['tilted_quads_before']} -> {s['tilted_quads_after']} of {s['boundary_quads']} tilted more than "
              f"{TILT_DEGREES:g} degrees from it" if "tilted_quads_after" in s else "")
           + (f" ({s['untilted_quads']} stood back up at the end)" if s.get("untilted_quads") else "")]
-         if "turned_quads_after" in s else []) + [
+         if "turned_quads_after" in s else []) + _leash_lines(s.get("boundary_leash")) + [
         f"stages            untangle {st.get('untangle', 0):.2f} s ({s['untangle_iterations']} iterations), quality "
         f"{st.get('quality', 0):.2f} s ({s['quality_rounds']} rounds"
         + (f", the last {s['quality_rounds_undone']} undone: they ended below where they began"
