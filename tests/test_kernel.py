@@ -723,3 +723,36 @@ def test_polish_reaches_the_minimum_to_rounding_and_stops_there():
     assert (np.abs(f0 - r["value"][sub]) <= 1e-13 * sc).mean() < 0.5
     x2, f2 = kernel.polish(b, x, "hexahedron")
     assert np.all(f2 <= f) and np.all(np.abs(f2 - f) <= 1e-14 * sc)
+
+
+def test_the_scaled_jacobian_of_a_cell_far_from_unit_size_is_its_value_at_unit_size_bit_for_bit():
+    """A power of two times every coordinate leaves a scaled Jacobian unchanged: the compiled values (generated
+    and table loop) and quality.py's at 2**-1000 ... 2**1000 are those at unit size bit for bit, on random and
+    inverted cells of every linear type, and the edge ratio too. At 2**-470 the product of three edge lengths
+    underflows to 0 (every cell read 0 before); at 2**470 it overflows to inf."""
+    from hexsos_plugins.cells import quality
+
+    rng = np.random.default_rng(75)
+    for name, X0 in quality.IDEAL.items():
+        X = X0[None] + 0.35 * rng.standard_normal((300,) + X0.shape)
+        P = X.reshape(-1, 3)
+        C = np.arange(len(P)).reshape(len(X), -1)
+        ids = np.arange(len(C))
+        unit = kernel.scaled_jacobian(P, [(name, C)])
+        ours = quality.scaled_jacobian(P, [(name, C)])
+        assert (unit < 0).any() and (unit > 0.5).any() and np.allclose(unit, ours, rtol=0, atol=1e-13)
+        for e in (-1000, -470, 470, 1000):
+            Q = np.ldexp(P, e)
+            edges = np.linalg.norm(Q[C[:, 1]] - Q[C[:, 0]], axis=1)
+            if abs(e) == 470:  # the case: a product of three edge lengths is not a double there
+                with np.errstate(over="ignore", under="ignore"):
+                    assert (edges ** 3 == (0.0 if e < 0 else np.inf)).all()
+            assert np.array_equal(kernel.scaled_jacobian(Q, [(name, C)]), unit), (name, e)
+            assert np.array_equal(quality.scaled_jacobian(Q, [(name, C)]), ours), (name, e)
+            loop = np.empty(len(C))
+            kcompiled.impl.scaled_jacobian_chunk(*kcalls.sj_args(Q, C, ids, name, loop, 0, len(C), generated=False))
+            assert np.array_equal(loop, unit), (name, e)
+    P, C = np.ldexp(quality.IDEAL["hexahedron"], -1000), np.arange(8)[None]
+    assert quality.hex_edge_ratio(P, C).tolist() == [1.0]
+    X = quality.IDEAL["hexahedron"] + 0.2 * rng.standard_normal((8, 3))
+    assert quality.hex_edge_ratio(np.ldexp(X, 700), C)[0] == quality.hex_edge_ratio(X, C)[0] < 1.0

@@ -31,7 +31,7 @@ import numpy as np
 from ..errors import InvalidInputError
 from .hexahedron import EDGES
 
-__all__ = ["scaled_jacobian", "summary", "sample_scaled_jacobians", "SAMPLES", "LINEAR_TYPES", "IDEAL",
+__all__ = ["scaled_jacobian", "summary", "sample_scaled_jacobians", "unit_edges", "det3", "SAMPLES", "LINEAR_TYPES", "IDEAL",
            "as_cell_list", "sample_edges", "hex_edge_ratio", "edge_ratio_summary", "SHORT_EDGE_RATIO"]
 
 #: A hex whose shortest edge is below this fraction of its longest is counted in the reports (an aspect ratio
@@ -107,6 +107,37 @@ def sample_edges(X, name) -> np.ndarray:
     return np.einsum("mna,knd->mkad", X, G, optimize=True)
 
 
+def unit_edges(E) -> np.ndarray:
+    """Edge matrices E (M, K, 3, 3) (or any (M, ...) array of a cell's vectors), each cell's times the power of two that takes its largest |entry| into
+    [0.5, 1): exact, so a scaled Jacobian from them is the same bit for bit, but a cell far from unit size (1e-140,
+    1e140) no longer underflows or overflows its edge products. Cells with no finite positive entry as they are.
+
+    >>> E = np.eye(3)[None, None] * 2.0**-470  # 3.3e-142: its product of three edge lengths underflows to 0
+    >>> float(np.prod(np.linalg.norm(E, axis=2))), float(det3(unit_edges(E))[0, 0] / np.prod(np.linalg.norm(unit_edges(E), axis=2)))
+    (0.0, 1.0)
+    """
+    E = np.asarray(E, dtype=np.float64)
+    if E.shape[0] == 0:
+        return E
+    ext = np.abs(E).reshape(E.shape[0], -1).max(axis=1)
+    ok = (ext > 0) & np.isfinite(ext)
+    k = np.where(ok, np.frexp(np.where(ok, ext, 1.0))[1], 0)
+    return np.ldexp(E, -k.reshape((-1,) + (1,) * (E.ndim - 1)))
+
+
+def det3(E) -> np.ndarray:
+    """Determinants of 3 x 3 matrices E (..., 3, 3) by the triple product of their columns, as the compiled kernel
+    forms them (``numpy.linalg.det`` goes through logarithms: 0.125 (1 + 2**-52) for half the identity).
+
+    >>> float(det3(0.5 * np.eye(3))), float(det3(np.array([[2.0, 0, 0], [0, 0, 3], [0, 1, 0]])))
+    (0.125, -6.0)
+    """
+    a, b, c = E[..., :, 0], E[..., :, 1], E[..., :, 2]
+    return (a[..., 0] * (b[..., 1] * c[..., 2] - b[..., 2] * c[..., 1])
+            - b[..., 0] * (a[..., 1] * c[..., 2] - a[..., 2] * c[..., 1])
+            + c[..., 0] * (a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1]))
+
+
 def sample_scaled_jacobians(X, name) -> np.ndarray:
     """Normalized corner determinants (M, K): ``factor * det E_k / (|e1| |e2| |e3|)`` per sample.
 
@@ -115,8 +146,8 @@ def sample_scaled_jacobians(X, name) -> np.ndarray:
     over its corners while det > 0): see :func:`scaled_jacobian`.
     """
     X = np.asarray(X, dtype=np.float64)
-    E = sample_edges(X, name)
-    det = np.linalg.det(E)
+    E = unit_edges(sample_edges(X, name))
+    det = det3(E)
     lengths = np.sqrt((E * E).sum(axis=2)).prod(axis=2)
     with np.errstate(divide="ignore", invalid="ignore"):
         v = SAMPLES[name][1] * det / lengths
@@ -127,9 +158,9 @@ def _cell_values(X, name) -> np.ndarray:
     if name in ("hexahedron", "wedge"):
         return sample_scaled_jacobians(X, name).min(axis=1)
     # tetra (one tet) and pyramid (four): det / the largest corner product of each tet
-    E = sample_edges(np.asarray(X, dtype=np.float64), name)
+    E = unit_edges(sample_edges(np.asarray(X, dtype=np.float64), name))
     M = E.shape[0]
-    det = np.linalg.det(E).reshape(M, -1, 4)[:, :, 0]
+    det = det3(E).reshape(M, -1, 4)[:, :, 0]
     big = np.sqrt((E * E).sum(axis=2)).prod(axis=2).reshape(M, -1, 4).max(axis=2)
     with np.errstate(divide="ignore", invalid="ignore"):
         v = np.where(big > np.finfo(np.float64).tiny, SAMPLES[name][1] * det / big, 0.0).min(axis=1)
@@ -202,7 +233,7 @@ def hex_edge_ratio(points, hexes) -> np.ndarray:
     """The shortest edge of every hex over its longest, (M,) in [0, 1] (0 where every edge has length 0)."""
     P = np.asarray(points, dtype=np.float64)
     H = np.asarray(hexes, dtype=np.int64).reshape(-1, 8)
-    ln = np.linalg.norm(P[H[:, EDGES[:, 0]]] - P[H[:, EDGES[:, 1]]], axis=2)
+    ln = np.linalg.norm(unit_edges(P[H[:, EDGES[:, 0]]] - P[H[:, EDGES[:, 1]]]), axis=2)
     hi = ln.max(axis=1) if len(H) else np.zeros(0)
     return np.divide(ln.min(axis=1) if len(H) else hi, hi, out=np.zeros_like(hi), where=hi > 0)
 

@@ -12,6 +12,7 @@ from pathlib import Path
 
 from ..kernel.cell_tables import (GENERATED, GENERATED_FILE, SJ_GENERATED, TINY, Tables, code_fingerprint,
                              generated_fingerprints, nodes_only, sj_fingerprint, sj_tables)
+from ..kernel.source import SJ_HIGH, SJ_LOW
 
 __all__ = ["generated_source", "write_generated"]
 
@@ -98,12 +99,26 @@ def _sj_source(name) -> list:
              f'    """{name}: Verdict\'s scaled Jacobian of cell m (see source.scaled_jacobian_chunk)."""']
     lines += [f"    i{i} = conn[m, {i}]" for i in used]
     lines += [f"    x{i}_{a} = points[i{i}, {a}]" for i in used for a in range(3)]
-    for v in range(len(vptr) - 1):
+    nv = len(vptr) - 1
+    for v in range(nv):
         for a in range(3):
             lines.append(f"    v{v}_{a} = 0.0")
             for q in range(vptr[v], vptr[v + 1]):
                 lines.append(f"    v{v}_{a} += {float(vw[q])!r} * x{int(vnode[q])}_{a}")
         lines.append(f"    n{v} = math.sqrt(v{v}_0 * v{v}_0 + v{v}_1 * v{v}_1 + v{v}_2 * v{v}_2)")
+    # the loop's scaling by a power of two (exact) of a cell far from unit size
+    lines.append("    lmax = 0.0")
+    for v in range(nv):
+        lines += [f"    if n{v} > lmax:", f"        lmax = n{v}"]
+    lines += [f"    if not ({SJ_LOW!r} <= lmax <= {SJ_HIGH!r}):", "        ext = 0.0"]
+    for v in range(nv):
+        for a in range(3):
+            lines += [f"        x = abs(v{v}_{a})", "        if x > ext:", "            ext = x"]
+    lines += ["        if 0.0 < ext < math.inf:", "            e2 = math.frexp(ext)[1]",
+              "            f1 = math.ldexp(1.0, -e2 // 2)", "            f2 = math.ldexp(1.0, -e2 - (-e2 // 2))"]
+    for v in range(nv):
+        lines += [f"            v{v}_{a} = v{v}_{a} * f1 * f2" for a in range(3)]
+        lines.append(f"            n{v} = math.sqrt(v{v}_0 * v{v}_0 + v{v}_1 * v{v}_1 + v{v}_2 * v{v}_2)")
     lines.append("    best = math.inf")
     for k in range(samp.shape[0]):
         a, b, c = (int(x) for x in samp[k])

@@ -1366,6 +1366,103 @@ def _sj_tetra(points, conn, m):
     v5_2 += -1.0 * x2_2
     v5_2 += 1.0 * x3_2
     n5 = math.sqrt(v5_0 * v5_0 + v5_1 * v5_1 + v5_2 * v5_2)
+    lmax = 0.0
+    if n0 > lmax:
+        lmax = n0
+    if n1 > lmax:
+        lmax = n1
+    if n2 > lmax:
+        lmax = n2
+    if n3 > lmax:
+        lmax = n3
+    if n4 > lmax:
+        lmax = n4
+    if n5 > lmax:
+        lmax = n5
+    if not (5.527147875260445e-76 <= lmax <= 1.8092513943330656e+75):
+        ext = 0.0
+        x = abs(v0_0)
+        if x > ext:
+            ext = x
+        x = abs(v0_1)
+        if x > ext:
+            ext = x
+        x = abs(v0_2)
+        if x > ext:
+            ext = x
+        x = abs(v1_0)
+        if x > ext:
+            ext = x
+        x = abs(v1_1)
+        if x > ext:
+            ext = x
+        x = abs(v1_2)
+        if x > ext:
+            ext = x
+        x = abs(v2_0)
+        if x > ext:
+            ext = x
+        x = abs(v2_1)
+        if x > ext:
+            ext = x
+        x = abs(v2_2)
+        if x > ext:
+            ext = x
+        x = abs(v3_0)
+        if x > ext:
+            ext = x
+        x = abs(v3_1)
+        if x > ext:
+            ext = x
+        x = abs(v3_2)
+        if x > ext:
+            ext = x
+        x = abs(v4_0)
+        if x > ext:
+            ext = x
+        x = abs(v4_1)
+        if x > ext:
+            ext = x
+        x = abs(v4_2)
+        if x > ext:
+            ext = x
+        x = abs(v5_0)
+        if x > ext:
+            ext = x
+        x = abs(v5_1)
+        if x > ext:
+            ext = x
+        x = abs(v5_2)
+        if x > ext:
+            ext = x
+        if 0.0 < ext < math.inf:
+            e2 = math.frexp(ext)[1]
+            f1 = math.ldexp(1.0, -e2 // 2)
+            f2 = math.ldexp(1.0, -e2 - (-e2 // 2))
+            v0_0 = v0_0 * f1 * f2
+            v0_1 = v0_1 * f1 * f2
+            v0_2 = v0_2 * f1 * f2
+            n0 = math.sqrt(v0_0 * v0_0 + v0_1 * v0_1 + v0_2 * v0_2)
+            v1_0 = v1_0 * f1 * f2
+            v1_1 = v1_1 * f1 * f2
+            v1_2 = v1_2 * f1 * f2
+            n1 = math.sqrt(v1_0 * v1_0 + v1_1 * v1_1 + v1_2 * v1_2)
+            v2_0 = v2_0 * f1 * f2
+            v2_1 = v2_1 * f1 * f2
+            v2_2 = v2_2 * f1 * f2
+            n2 = math.sqrt(v2_0 * v2_0 + v2_1 * v2_1 + v2_2 * v2_2)
+            v3_0 = v3_0 * f1 * f2
+            v3_1 = v3_1 * f1 * f2
+            v3_2 = v3_2 * f1 * f2
+            n3 = math.sqrt(v3_0 * v3_0 + v3_1 * v3_1 + v3_2 * v3_2)
+            v4_0 = v4_0 * f1 * f2
+            v4_1 = v4_1 * f1 * f2
+            v4_2 = v4_2 * f1 * f2
+            n4 = math.sqrt(v4_0 * v4_0 + v4_1 * v4_1 + v4_2 * v4_2)
+            v5_0 = v5_0 * f1 * f2
+            v5_1 = v5_1 * f1 * f2
+            v5_2 = v5_2 * f1 * f2
+            n5 = math.sqrt(v5_0 * v5_0 + v5_1 * v5_1 + v5_2 * v5_2)
     best = math.inf
     det = (v0_0 * (v1_1 * v2_2 - v1_2 * v2_1) - v1_0 * (v0_1 * v2_2 - v0_2 * v2_1) + v2_0 * (v0_1 * v1_2 - v0_2 * v1_1)) * 1.0
     lengths = n0 * n1 * n2
@@ -1512,6 +1609,163 @@ def _sj_pyramid(points, conn, m):
     v9_2 += -1.0 * x2_2
     v9_2 += 1.0 * x3_2
     n9 = math.sqrt(v9_0 * v9_0 + v9_1 * v9_1 + v9_2 * v9_2)
+    lmax = 0.0
+    if n0 > lmax:
+        lmax = n0
+    if n1 > lmax:
+        lmax = n1
+    if n2 > lmax:
+        lmax = n2
+    if n3 > lmax:
+        lmax = n3
+    if n4 > lmax:
+        lmax = n4
+    if n5 > lmax:
+        lmax = n5
+    if n6 > lmax:
+        lmax = n6
+    if n7 > lmax:
+        lmax = n7
+    if n8 > lmax:
+        lmax = n8
+    if n9 > lmax:
+        lmax = n9
+    if not (5.527147875260445e-76 <= lmax <= 1.8092513943330656e+75):
+        ext = 0.0
+        x = abs(v0_0)
+        if x > ext:
+            ext = x
+        x = abs(v0_1)
+        if x > ext:
+            ext = x
+        x = abs(v0_2)
+        if x > ext:
+            ext = x
+        x = abs(v1_0)
+        if x > ext:
+            ext = x
+        x = abs(v1_1)
+        if x > ext:
+            ext = x
+        x = abs(v1_2)
+        if x > ext:
+            ext = x
+        x = abs(v2_0)
+        if x > ext:
+            ext = x
+        x = abs(v2_1)
+        if x > ext:
+            ext = x
+        x = abs(v2_2)
+        if x > ext:
+            ext = x
+        x = abs(v3_0)
+        if x > ext:
+            ext = x
+        x = abs(v3_1)
+        if x > ext:
+            ext = x
+        x = abs(v3_2)
+        if x > ext:
+            ext = x
+        x = abs(v4_0)
+        if x > ext:
+            ext = x
+        x = abs(v4_1)
+        if x > ext:
+            ext = x
+        x = abs(v4_2)
+        if x > ext:
+            ext = x
+        x = abs(v5_0)
+        if x > ext:
+            ext = x
+        x = abs(v5_1)
+        if x > ext:
+            ext = x
+        x = abs(v5_2)
+        if x > ext:
+            ext = x
+        x = abs(v6_0)
+        if x > ext:
+            ext = x
+        x = abs(v6_1)
+        if x > ext:
+            ext = x
+        x = abs(v6_2)
+        if x > ext:
+            ext = x
+        x = abs(v7_0)
+        if x > ext:
+            ext = x
+        x = abs(v7_1)
+        if x > ext:
+            ext = x
+        x = abs(v7_2)
+        if x > ext:
+            ext = x
+        x = abs(v8_0)
+        if x > ext:
+            ext = x
+        x = abs(v8_1)
+        if x > ext:
+            ext = x
+        x = abs(v8_2)
+        if x > ext:
+            ext = x
+        x = abs(v9_0)
+        if x > ext:
+            ext = x
+        x = abs(v9_1)
+        if x > ext:
+            ext = x
+        x = abs(v9_2)
+        if x > ext:
+            ext = x
+        if 0.0 < ext < math.inf:
+            e2 = math.frexp(ext)[1]
+            f1 = math.ldexp(1.0, -e2 // 2)
+            f2 = math.ldexp(1.0, -e2 - (-e2 // 2))
+            v0_0 = v0_0 * f1 * f2
+            v0_1 = v0_1 * f1 * f2
+            v0_2 = v0_2 * f1 * f2
+            n0 = math.sqrt(v0_0 * v0_0 + v0_1 * v0_1 + v0_2 * v0_2)
+            v1_0 = v1_0 * f1 * f2
+            v1_1 = v1_1 * f1 * f2
+            v1_2 = v1_2 * f1 * f2
+            n1 = math.sqrt(v1_0 * v1_0 + v1_1 * v1_1 + v1_2 * v1_2)
+            v2_0 = v2_0 * f1 * f2
+            v2_1 = v2_1 * f1 * f2
+            v2_2 = v2_2 * f1 * f2
+            n2 = math.sqrt(v2_0 * v2_0 + v2_1 * v2_1 + v2_2 * v2_2)
+            v3_0 = v3_0 * f1 * f2
+            v3_1 = v3_1 * f1 * f2
+            v3_2 = v3_2 * f1 * f2
+            n3 = math.sqrt(v3_0 * v3_0 + v3_1 * v3_1 + v3_2 * v3_2)
+            v4_0 = v4_0 * f1 * f2
+            v4_1 = v4_1 * f1 * f2
+            v4_2 = v4_2 * f1 * f2
+            n4 = math.sqrt(v4_0 * v4_0 + v4_1 * v4_1 + v4_2 * v4_2)
+            v5_0 = v5_0 * f1 * f2
+            v5_1 = v5_1 * f1 * f2
+            v5_2 = v5_2 * f1 * f2
+            n5 = math.sqrt(v5_0 * v5_0 + v5_1 * v5_1 + v5_2 * v5_2)
+            v6_0 = v6_0 * f1 * f2
+            v6_1 = v6_1 * f1 * f2
+            v6_2 = v6_2 * f1 * f2
+            n6 = math.sqrt(v6_0 * v6_0 + v6_1 * v6_1 + v6_2 * v6_2)
+            v7_0 = v7_0 * f1 * f2
+            v7_1 = v7_1 * f1 * f2
+            v7_2 = v7_2 * f1 * f2
+            n7 = math.sqrt(v7_0 * v7_0 + v7_1 * v7_1 + v7_2 * v7_2)
+            v8_0 = v8_0 * f1 * f2
+            v8_1 = v8_1 * f1 * f2
+            v8_2 = v8_2 * f1 * f2
+            n8 = math.sqrt(v8_0 * v8_0 + v8_1 * v8_1 + v8_2 * v8_2)
+            v9_0 = v9_0 * f1 * f2
+            v9_1 = v9_1 * f1 * f2
+            v9_2 = v9_2 * f1 * f2
+            n9 = math.sqrt(v9_0 * v9_0 + v9_1 * v9_1 + v9_2 * v9_2)
     best = math.inf
     det = (v0_0 * (v1_1 * v2_2 - v1_2 * v2_1) - v1_0 * (v0_1 * v2_2 - v0_2 * v2_1) + v2_0 * (v0_1 * v1_2 - v0_2 * v1_1)) * 1.0
     lengths = n0 * n1 * n2
@@ -1711,6 +1965,148 @@ def _sj_wedge(points, conn, m):
     v8_2 += -1.0 * x4_2
     v8_2 += 1.0 * x5_2
     n8 = math.sqrt(v8_0 * v8_0 + v8_1 * v8_1 + v8_2 * v8_2)
+    lmax = 0.0
+    if n0 > lmax:
+        lmax = n0
+    if n1 > lmax:
+        lmax = n1
+    if n2 > lmax:
+        lmax = n2
+    if n3 > lmax:
+        lmax = n3
+    if n4 > lmax:
+        lmax = n4
+    if n5 > lmax:
+        lmax = n5
+    if n6 > lmax:
+        lmax = n6
+    if n7 > lmax:
+        lmax = n7
+    if n8 > lmax:
+        lmax = n8
+    if not (5.527147875260445e-76 <= lmax <= 1.8092513943330656e+75):
+        ext = 0.0
+        x = abs(v0_0)
+        if x > ext:
+            ext = x
+        x = abs(v0_1)
+        if x > ext:
+            ext = x
+        x = abs(v0_2)
+        if x > ext:
+            ext = x
+        x = abs(v1_0)
+        if x > ext:
+            ext = x
+        x = abs(v1_1)
+        if x > ext:
+            ext = x
+        x = abs(v1_2)
+        if x > ext:
+            ext = x
+        x = abs(v2_0)
+        if x > ext:
+            ext = x
+        x = abs(v2_1)
+        if x > ext:
+            ext = x
+        x = abs(v2_2)
+        if x > ext:
+            ext = x
+        x = abs(v3_0)
+        if x > ext:
+            ext = x
+        x = abs(v3_1)
+        if x > ext:
+            ext = x
+        x = abs(v3_2)
+        if x > ext:
+            ext = x
+        x = abs(v4_0)
+        if x > ext:
+            ext = x
+        x = abs(v4_1)
+        if x > ext:
+            ext = x
+        x = abs(v4_2)
+        if x > ext:
+            ext = x
+        x = abs(v5_0)
+        if x > ext:
+            ext = x
+        x = abs(v5_1)
+        if x > ext:
+            ext = x
+        x = abs(v5_2)
+        if x > ext:
+            ext = x
+        x = abs(v6_0)
+        if x > ext:
+            ext = x
+        x = abs(v6_1)
+        if x > ext:
+            ext = x
+        x = abs(v6_2)
+        if x > ext:
+            ext = x
+        x = abs(v7_0)
+        if x > ext:
+            ext = x
+        x = abs(v7_1)
+        if x > ext:
+            ext = x
+        x = abs(v7_2)
+        if x > ext:
+            ext = x
+        x = abs(v8_0)
+        if x > ext:
+            ext = x
+        x = abs(v8_1)
+        if x > ext:
+            ext = x
+        x = abs(v8_2)
+        if x > ext:
+            ext = x
+        if 0.0 < ext < math.inf:
+            e2 = math.frexp(ext)[1]
+            f1 = math.ldexp(1.0, -e2 // 2)
+            f2 = math.ldexp(1.0, -e2 - (-e2 // 2))
+            v0_0 = v0_0 * f1 * f2
+            v0_1 = v0_1 * f1 * f2
+            v0_2 = v0_2 * f1 * f2
+            n0 = math.sqrt(v0_0 * v0_0 + v0_1 * v0_1 + v0_2 * v0_2)
+            v1_0 = v1_0 * f1 * f2
+            v1_1 = v1_1 * f1 * f2
+            v1_2 = v1_2 * f1 * f2
+            n1 = math.sqrt(v1_0 * v1_0 + v1_1 * v1_1 + v1_2 * v1_2)
+            v2_0 = v2_0 * f1 * f2
+            v2_1 = v2_1 * f1 * f2
+            v2_2 = v2_2 * f1 * f2
+            n2 = math.sqrt(v2_0 * v2_0 + v2_1 * v2_1 + v2_2 * v2_2)
+            v3_0 = v3_0 * f1 * f2
+            v3_1 = v3_1 * f1 * f2
+            v3_2 = v3_2 * f1 * f2
+            n3 = math.sqrt(v3_0 * v3_0 + v3_1 * v3_1 + v3_2 * v3_2)
+            v4_0 = v4_0 * f1 * f2
+            v4_1 = v4_1 * f1 * f2
+            v4_2 = v4_2 * f1 * f2
+            n4 = math.sqrt(v4_0 * v4_0 + v4_1 * v4_1 + v4_2 * v4_2)
+            v5_0 = v5_0 * f1 * f2
+            v5_1 = v5_1 * f1 * f2
+            v5_2 = v5_2 * f1 * f2
+            n5 = math.sqrt(v5_0 * v5_0 + v5_1 * v5_1 + v5_2 * v5_2)
+            v6_0 = v6_0 * f1 * f2
+            v6_1 = v6_1 * f1 * f2
+            v6_2 = v6_2 * f1 * f2
+            n6 = math.sqrt(v6_0 * v6_0 + v6_1 * v6_1 + v6_2 * v6_2)
+            v7_0 = v7_0 * f1 * f2
+            v7_1 = v7_1 * f1 * f2
+            v7_2 = v7_2 * f1 * f2
+            n7 = math.sqrt(v7_0 * v7_0 + v7_1 * v7_1 + v7_2 * v7_2)
+            v8_0 = v8_0 * f1 * f2
+            v8_1 = v8_1 * f1 * f2
+            v8_2 = v8_2 * f1 * f2
+            n8 = math.sqrt(v8_0 * v8_0 + v8_1 * v8_1 + v8_2 * v8_2)
     best = math.inf
     det = (v0_0 * (v1_1 * v2_2 - v1_2 * v2_1) - v1_0 * (v0_1 * v2_2 - v0_2 * v2_1) + v2_0 * (v0_1 * v1_2 - v0_2 * v1_1)) * 1.0
     lengths = n0 * n1 * n2
@@ -1984,6 +2380,238 @@ def _sj_hexahedron(points, conn, m):
     v14_2 += 0.25 * x6_2
     v14_2 += 0.25 * x7_2
     n14 = math.sqrt(v14_0 * v14_0 + v14_1 * v14_1 + v14_2 * v14_2)
+    lmax = 0.0
+    if n0 > lmax:
+        lmax = n0
+    if n1 > lmax:
+        lmax = n1
+    if n2 > lmax:
+        lmax = n2
+    if n3 > lmax:
+        lmax = n3
+    if n4 > lmax:
+        lmax = n4
+    if n5 > lmax:
+        lmax = n5
+    if n6 > lmax:
+        lmax = n6
+    if n7 > lmax:
+        lmax = n7
+    if n8 > lmax:
+        lmax = n8
+    if n9 > lmax:
+        lmax = n9
+    if n10 > lmax:
+        lmax = n10
+    if n11 > lmax:
+        lmax = n11
+    if n12 > lmax:
+        lmax = n12
+    if n13 > lmax:
+        lmax = n13
+    if n14 > lmax:
+        lmax = n14
+    if not (5.527147875260445e-76 <= lmax <= 1.8092513943330656e+75):
+        ext = 0.0
+        x = abs(v0_0)
+        if x > ext:
+            ext = x
+        x = abs(v0_1)
+        if x > ext:
+            ext = x
+        x = abs(v0_2)
+        if x > ext:
+            ext = x
+        x = abs(v1_0)
+        if x > ext:
+            ext = x
+        x = abs(v1_1)
+        if x > ext:
+            ext = x
+        x = abs(v1_2)
+        if x > ext:
+            ext = x
+        x = abs(v2_0)
+        if x > ext:
+            ext = x
+        x = abs(v2_1)
+        if x > ext:
+            ext = x
+        x = abs(v2_2)
+        if x > ext:
+            ext = x
+        x = abs(v3_0)
+        if x > ext:
+            ext = x
+        x = abs(v3_1)
+        if x > ext:
+            ext = x
+        x = abs(v3_2)
+        if x > ext:
+            ext = x
+        x = abs(v4_0)
+        if x > ext:
+            ext = x
+        x = abs(v4_1)
+        if x > ext:
+            ext = x
+        x = abs(v4_2)
+        if x > ext:
+            ext = x
+        x = abs(v5_0)
+        if x > ext:
+            ext = x
+        x = abs(v5_1)
+        if x > ext:
+            ext = x
+        x = abs(v5_2)
+        if x > ext:
+            ext = x
+        x = abs(v6_0)
+        if x > ext:
+            ext = x
+        x = abs(v6_1)
+        if x > ext:
+            ext = x
+        x = abs(v6_2)
+        if x > ext:
+            ext = x
+        x = abs(v7_0)
+        if x > ext:
+            ext = x
+        x = abs(v7_1)
+        if x > ext:
+            ext = x
+        x = abs(v7_2)
+        if x > ext:
+            ext = x
+        x = abs(v8_0)
+        if x > ext:
+            ext = x
+        x = abs(v8_1)
+        if x > ext:
+            ext = x
+        x = abs(v8_2)
+        if x > ext:
+            ext = x
+        x = abs(v9_0)
+        if x > ext:
+            ext = x
+        x = abs(v9_1)
+        if x > ext:
+            ext = x
+        x = abs(v9_2)
+        if x > ext:
+            ext = x
+        x = abs(v10_0)
+        if x > ext:
+            ext = x
+        x = abs(v10_1)
+        if x > ext:
+            ext = x
+        x = abs(v10_2)
+        if x > ext:
+            ext = x
+        x = abs(v11_0)
+        if x > ext:
+            ext = x
+        x = abs(v11_1)
+        if x > ext:
+            ext = x
+        x = abs(v11_2)
+        if x > ext:
+            ext = x
+        x = abs(v12_0)
+        if x > ext:
+            ext = x
+        x = abs(v12_1)
+        if x > ext:
+            ext = x
+        x = abs(v12_2)
+        if x > ext:
+            ext = x
+        x = abs(v13_0)
+        if x > ext:
+            ext = x
+        x = abs(v13_1)
+        if x > ext:
+            ext = x
+        x = abs(v13_2)
+        if x > ext:
+            ext = x
+        x = abs(v14_0)
+        if x > ext:
+            ext = x
+        x = abs(v14_1)
+        if x > ext:
+            ext = x
+        x = abs(v14_2)
+        if x > ext:
+            ext = x
+        if 0.0 < ext < math.inf:
+            e2 = math.frexp(ext)[1]
+            f1 = math.ldexp(1.0, -e2 // 2)
+            f2 = math.ldexp(1.0, -e2 - (-e2 // 2))
+            v0_0 = v0_0 * f1 * f2
+            v0_1 = v0_1 * f1 * f2
+            v0_2 = v0_2 * f1 * f2
+            n0 = math.sqrt(v0_0 * v0_0 + v0_1 * v0_1 + v0_2 * v0_2)
+            v1_0 = v1_0 * f1 * f2
+            v1_1 = v1_1 * f1 * f2
+            v1_2 = v1_2 * f1 * f2
+            n1 = math.sqrt(v1_0 * v1_0 + v1_1 * v1_1 + v1_2 * v1_2)
+            v2_0 = v2_0 * f1 * f2
+            v2_1 = v2_1 * f1 * f2
+            v2_2 = v2_2 * f1 * f2
+            n2 = math.sqrt(v2_0 * v2_0 + v2_1 * v2_1 + v2_2 * v2_2)
+            v3_0 = v3_0 * f1 * f2
+            v3_1 = v3_1 * f1 * f2
+            v3_2 = v3_2 * f1 * f2
+            n3 = math.sqrt(v3_0 * v3_0 + v3_1 * v3_1 + v3_2 * v3_2)
+            v4_0 = v4_0 * f1 * f2
+            v4_1 = v4_1 * f1 * f2
+            v4_2 = v4_2 * f1 * f2
+            n4 = math.sqrt(v4_0 * v4_0 + v4_1 * v4_1 + v4_2 * v4_2)
+            v5_0 = v5_0 * f1 * f2
+            v5_1 = v5_1 * f1 * f2
+            v5_2 = v5_2 * f1 * f2
+            n5 = math.sqrt(v5_0 * v5_0 + v5_1 * v5_1 + v5_2 * v5_2)
+            v6_0 = v6_0 * f1 * f2
+            v6_1 = v6_1 * f1 * f2
+            v6_2 = v6_2 * f1 * f2
+            n6 = math.sqrt(v6_0 * v6_0 + v6_1 * v6_1 + v6_2 * v6_2)
+            v7_0 = v7_0 * f1 * f2
+            v7_1 = v7_1 * f1 * f2
+            v7_2 = v7_2 * f1 * f2
+            n7 = math.sqrt(v7_0 * v7_0 + v7_1 * v7_1 + v7_2 * v7_2)
+            v8_0 = v8_0 * f1 * f2
+            v8_1 = v8_1 * f1 * f2
+            v8_2 = v8_2 * f1 * f2
+            n8 = math.sqrt(v8_0 * v8_0 + v8_1 * v8_1 + v8_2 * v8_2)
+            v9_0 = v9_0 * f1 * f2
+            v9_1 = v9_1 * f1 * f2
+            v9_2 = v9_2 * f1 * f2
+            n9 = math.sqrt(v9_0 * v9_0 + v9_1 * v9_1 + v9_2 * v9_2)
+            v10_0 = v10_0 * f1 * f2
+            v10_1 = v10_1 * f1 * f2
+            v10_2 = v10_2 * f1 * f2
+            n10 = math.sqrt(v10_0 * v10_0 + v10_1 * v10_1 + v10_2 * v10_2)
+            v11_0 = v11_0 * f1 * f2
+            v11_1 = v11_1 * f1 * f2
+            v11_2 = v11_2 * f1 * f2
+            n11 = math.sqrt(v11_0 * v11_0 + v11_1 * v11_1 + v11_2 * v11_2)
+            v12_0 = v12_0 * f1 * f2
+            v12_1 = v12_1 * f1 * f2
+            v12_2 = v12_2 * f1 * f2
+            n12 = math.sqrt(v12_0 * v12_0 + v12_1 * v12_1 + v12_2 * v12_2)
+            v13_0 = v13_0 * f1 * f2
+            v13_1 = v13_1 * f1 * f2
+            v13_2 = v13_2 * f1 * f2
+            n13 = math.sqrt(v13_0 * v13_0 + v13_1 * v13_1 + v13_2 * v13_2)
+            v14_0 = v14_0 * f1 * f2
+            v14_1 = v14_1 * f1 * f2
+            v14_2 = v14_2 * f1 * f2
+            n14 = math.sqrt(v14_0 * v14_0 + v14_1 * v14_1 + v14_2 * v14_2)
     best = math.inf
     det = (v0_0 * (v1_1 * v2_2 - v1_2 * v2_1) - v1_0 * (v0_1 * v2_2 - v0_2 * v2_1) + v2_0 * (v0_1 * v1_2 - v0_2 * v1_1)) * 1.0
     lengths = n0 * n1 * n2

@@ -70,6 +70,12 @@ def _scaled_differences(points, conn, m, n, D):
     return k
 
 
+#: The scaled Jacobian scales a cell whose longest vector is outside [SJ_LOW, SJ_HIGH] (2**-250, 2**250): inside, no
+#: product of three of its components or of its edge lengths comes near the ends of the doubles
+SJ_LOW = 2.0 ** -250
+SJ_HIGH = 2.0 ** 250
+
+
 @njit(cache=True, nogil=True, inline="always")
 def _perm(A):
     """The permanent of a non-negative 3 x 3 matrix."""
@@ -1531,6 +1537,29 @@ def scaled_jacobian_chunk(points, conn, ids, start, stop, vptr, vnode, vw, samp,
             Vx[v, 1] = s1
             Vx[v, 2] = s2
             Ln[v] = math.sqrt(s0 * s0 + s1 * s1 + s2 * s2)
+        # a cell far from unit size (its longest vector outside [SJ_LOW, SJ_HIGH]: 1e-140, 1e140): the vectors
+        # times the power of two that takes their largest component into [0.5, 1), exact, so the value is the one
+        # at unit size bit for bit, where the edge products would underflow (at 1e-140 every cell read 0) or
+        # overflow. Inside, as they are (the same numbers: the scaling is exact)
+        lmax = 0.0
+        for v in range(nv):
+            if Ln[v] > lmax:
+                lmax = Ln[v]
+        if not (SJ_LOW <= lmax <= SJ_HIGH):
+            ext = 0.0
+            for v in range(nv):
+                for a in range(3):
+                    x = abs(Vx[v, a])
+                    if x > ext:
+                        ext = x
+            if 0.0 < ext < np.inf:
+                e2 = math.frexp(ext)[1]  # int32, not the samples' index k below (one variable, one type: pycc)
+                f1 = math.ldexp(1.0, -e2 // 2)  # 2**-e2 in two factors, each a double for every e2
+                f2 = math.ldexp(1.0, -e2 - (-e2 // 2))
+                for v in range(nv):
+                    for a in range(3):
+                        Vx[v, a] = Vx[v, a] * f1 * f2
+                    Ln[v] = math.sqrt(Vx[v, 0] * Vx[v, 0] + Vx[v, 1] * Vx[v, 1] + Vx[v, 2] * Vx[v, 2])
         best = np.inf
         gdet = 0.0
         gbig = 0.0
