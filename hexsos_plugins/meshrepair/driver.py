@@ -151,9 +151,10 @@ RECOVER_SECONDS = 10.0
 #: diagonal (:meth:`~hexsos_plugins.meshrepair.boundary.BoundaryModel.deviation`, sampled, a little under
 #: pymeshlab's Hausdorff distance), where the input's cells were valid, runs again with the vertices there and
 #: LEASH_RINGS rings of their boundary neighbours held within LEASH_FRACTION of the diagonal of their input
-#: positions (:func:`_leashed_again`). cat_2 (its vertices slide 3.3-3.7% across a crease of 38-43 degrees): 0.846
-#: at 2.10% alone, then 0.845 at 1.60% with 29 vertices held, 13.5 s more (one run, 2026-12-06). A leash on every
-#: boundary vertex from the start cost rockarm, the bunny and Dolphin_2 0.02-0.18 (README)
+#: positions (:func:`_leashed_again`). cat_2 (its vertices slide 3.3-3.7% across a crease of 38-43 degrees): 0.849
+#: at 2.10% alone, then 0.846 at 1.61% with 27 vertices held, 16.4 s more (one run, 2026-12-06; the published
+#: benchmark's: 0.846 -> 0.846, 22.9 s more, 43.2 s in all). A leash on every boundary vertex from the start cost
+#: rockarm, the bunny and Dolphin_2 0.02-0.18 (README)
 LEASH_TRIGGER = 0.95
 LEASH_FRACTION = 0.018
 LEASH_RINGS = 1
