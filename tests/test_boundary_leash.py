@@ -92,6 +92,10 @@ def test_a_repair_far_from_the_input_surface_runs_again_leashed_and_keeps_the_ne
     # a coarse ball: its boundary quads cannot be square on the sphere, and the repair moves its boundary 11.6% of
     # the diagonal from the input's (along the surface and within the band), far past the trigger
     P, H = cubed_ball(2)
+    # as it is: far everywhere (every boundary vertex), so no second run
+    info0 = hs.repair(P, H, jobs=0).stats["boundary_leash"]
+    assert info0["vertices"] == 26 and not info0["run"] and "more than 25%" in info0["why"]
+    monkeypatch.setattr(driver, "LEASH_MAX_SHARE", 1.0)  # a second run wherever it is far
     monkeypatch.setattr(driver, "LEASH_FRACTION", 0.001)  # held within 0.1% of the diagonal
     monkeypatch.setattr(driver, "LEASH_COST", 1.0)
     r = hs.repair(P, H, jobs=0)
@@ -118,6 +122,12 @@ def test_a_repair_far_from_the_input_surface_runs_again_leashed_and_keeps_the_ne
     move = np.linalg.norm(r.points[bm.vertices] - P[bm.vertices], axis=1)
     free = np.linalg.norm(r2.points[bm.vertices] - P[bm.vertices], axis=1)
     assert move.mean() < 0.95 * free.mean(), (move.mean(), free.mean())
+    # a leash wider than any vertex slid holds nothing: it does not run, and says why
+    monkeypatch.setattr(driver, "LEASH_FRACTION", 2.0)
+    r4 = hs.repair(P, H, jobs=0)
+    info4 = r4.stats["boundary_leash"]
+    assert not info4["run"] and "slid farther" in info4["why"] and info4["vertices"] > 0
+    monkeypatch.setattr(driver, "LEASH_FRACTION", 0.001)
     # without the seconds for it, it does not run, and says why
     monkeypatch.setattr(driver, "LEASH_MIN_SECONDS", 1e6)
     r3 = hs.repair(P, H, jobs=0)
@@ -142,6 +152,8 @@ def test_where_the_input_boundary_was_folded_no_vertex_is_leashed(monkeypatch):
     assert info["deviation"] > 1e-6 * driver.FAR_FRACTION  # it moved the fold ...
     assert info["vertices"] == 0 and not info["run"]  # ... and held nothing
     # the same fold with every vertex free: the surface moves beside it too, and those vertices are held
+    monkeypatch.setattr(driver, "LEASH_MAX_SHARE", 1.0)
+    monkeypatch.setattr(driver, "LEASH_FRACTION", 1e-6)
     r2 = hs.repair(P, H, jobs=0)
     info2 = r2.stats["boundary_leash"]
     assert info2["run"] and info2["vertices"] > 0 and r2.success

@@ -158,6 +158,10 @@ RECOVER_SECONDS = 10.0
 LEASH_TRIGGER = 0.95
 LEASH_FRACTION = 0.018
 LEASH_RINGS = 1
+#: ... only where they are at most this share of the boundary vertices: a boundary far from the input's nearly
+#: everywhere is a coarse mesh's (the band, a fifth of an edge, is several percent of its diagonal), and a leash on
+#: every boundary vertex costs quality (README); there a second run cost the test suite 70 s and kept little
+LEASH_MAX_SHARE = 0.25
 #: The second run is kept if certified, nearer the input's surface, and at most this below the first's minimum
 LEASH_COST = 0.02
 #: ... and runs only when this many seconds are left of REPAIR_SECONDS (the first run's clock)
@@ -641,9 +645,10 @@ def _leashed_again(first, res, run):
     """``res``, the result of the optimizer ``first`` (run), or that of a second run whose boundary vertices where
     the first left the boundary surface farther than ``LEASH_TRIGGER`` * ``FAR_FRACTION`` of the diagonal from the
     input's are held within ``LEASH_FRACTION`` of it of their input positions (``run(**more)`` makes the
-    optimizer). Only with ``boundary="slide"``, a certified first result, no time limit and no local fix, and only
+    optimizer). Only with ``boundary="slide"``, a certified first result, no time limit and no local fix, only
     where the input's cells around them were valid (where they were not, the surface is folded and must move: the
-    bunny's dent). The second run shares the first's clock, and runs only if ``LEASH_MIN_SECONDS`` are left of
+    bunny's dent), only if they are at most ``LEASH_MAX_SHARE`` of the boundary vertices and some slid farther than
+    the leash along the surface (else it would hold nothing). The second run shares the first's clock, and runs only if ``LEASH_MIN_SECONDS`` are left of
     ``REPAIR_SECONDS``; it is kept if certified, nearer the input's surface, and its minimum scaled Jacobian at most
     ``LEASH_COST`` below the first's (a target the first reached, reached). ``stats["boundary_leash"]`` says what
     was done."""
@@ -671,12 +676,21 @@ def _leashed_again(first, res, run):
     held &= ~first.suspect
     held_v = np.intersect1d(np.flatnonzero(held), bm.vertices)
     info["vertices"] = int(held_v.size)
+    if held_v.size > LEASH_MAX_SHARE * bm.vertices.size:  # far nearly everywhere: a coarse mesh and its band
+        info["why"] = (f"not run: {held_v.size} of the {bm.vertices.size} boundary vertices, more than "
+                       f"{100 * LEASH_MAX_SHARE:g}%: far from the input surface nearly everywhere, not where some slid")
+        return res
+    radius = LEASH_FRACTION * diag
+    slid = np.sqrt(((bm.closest(res.points, held_v)[held_v] - first.P0[held_v]) ** 2).sum(axis=1))
+    if not (slid > radius).any():  # the leash would hold none of them: the distance is the band's or the quads'
+        info["why"] = "not run: none of them slid farther than the leash along the surface"
+        return res
     left = first.t0 + REPAIR_SECONDS - time.perf_counter()
     if left < LEASH_MIN_SECONDS:
         info["why"] = f"not run: {max(left, 0.0):.1f} s left of the repair's {REPAIR_SECONDS:g}"
         return res
     t = time.perf_counter()
-    second = run(leash=(held_v, LEASH_FRACTION * diag), clock=first.t0, progress=None)
+    second = run(leash=(held_v, radius), clock=first.t0, progress=None)
     res2 = second.run()
     m1, m2 = res.stats["min_sj_after"], res2.stats["min_sj_after"]
     dev2 = float(bm.deviation(res2.points).max()) / diag if res2.success else None
