@@ -109,12 +109,15 @@ def test_a_repair_far_from_the_input_surface_runs_again_leashed_and_keeps_the_ne
     assert info["deviation_leashed"] == pytest.approx(bm.deviation(r.points).max() / diag, rel=1e-12)
     assert info["min_sj_leashed"] == r.stats["min_sj_after"]
     assert r.stats["seconds"] >= info["seconds"]
+    line = [x for x in r.summary().splitlines() if x.startswith("boundary leash")]
+    assert len(line) == 1 and "held within 0.1%" in line[0] and line[0].rstrip().endswith("s)") and "kept (" in line[0]
     # a second run that costs more than LEASH_COST is not kept: the first run's mesh is returned
     monkeypatch.setattr(driver, "LEASH_COST", -1.0)
     r2 = hs.repair(P, H, jobs=0)
     info2 = r2.stats["boundary_leash"]
     assert info2["run"] and not info2["kept"] and r2.success
     assert r2.stats["min_sj_after"] == info2["min_sj_free"] != info2["min_sj_leashed"]
+    assert "not kept (the first run's mesh is returned)" in r2.summary()
     assert bm.deviation(r2.points).max() / diag == pytest.approx(info2["deviation"], rel=1e-12)
     # every boundary vertex of this ball is held: the projections take them nearer their input positions (a
     # projection that would lower the minimum stops short: the faces' middle vertices, pulled in, stay off the
@@ -133,6 +136,7 @@ def test_a_repair_far_from_the_input_surface_runs_again_leashed_and_keeps_the_ne
     r3 = hs.repair(P, H, jobs=0)
     info3 = r3.stats["boundary_leash"]
     assert not info3["run"] and info3["why"].startswith("not run") and info3["vertices"] > 0
+    assert "were not held (not run: " in r3.summary()
     # nor with a time limit, a fixed boundary or a local fix
     for kw in ({"time_limit": 30.0}, {"boundary": "fixed"}, {"local": True}):
         assert "boundary_leash" not in hs.repair(P, H, jobs=0, **kw).stats, kw

@@ -31,8 +31,8 @@ import numpy as np
 from ..errors import InvalidInputError
 from .hexahedron import EDGES
 
-__all__ = ["scaled_jacobian", "summary", "sample_scaled_jacobians", "unit_edges", "det3", "SAMPLES", "LINEAR_TYPES", "IDEAL",
-           "as_cell_list", "sample_edges", "hex_edge_ratio", "edge_ratio_summary", "SHORT_EDGE_RATIO"]
+__all__ = ["scaled_jacobian", "summary", "sample_scaled_jacobians", "unit_edges", "det3", "SAMPLES", "LINEAR_TYPES",
+           "IDEAL", "as_cell_list", "sample_edges", "hex_edge_ratio", "edge_ratio_summary", "SHORT_EDGE_RATIO"]
 
 #: A hex whose shortest edge is below this fraction of its longest is counted in the reports (an aspect ratio
 #: above 20): the scaled Jacobian does not see an edge's length, and a hex with an edge collapsed toward 0 can
@@ -108,12 +108,14 @@ def sample_edges(X, name) -> np.ndarray:
 
 
 def unit_edges(E) -> np.ndarray:
-    """Edge matrices E (M, K, 3, 3) (or any (M, ...) array of a cell's vectors), each cell's times the power of two that takes its largest |entry| into
-    [0.5, 1): exact, so a scaled Jacobian from them is the same bit for bit, but a cell far from unit size (1e-140,
-    1e140) no longer underflows or overflows its edge products. Cells with no finite positive entry as they are.
+    """Edge matrices E (M, K, 3, 3) (or any (M, ...) array of each cell's vectors), each cell's times the power of
+    two that takes its largest |entry| into [0.5, 1): exact, so a scaled Jacobian from them is the same bit for bit,
+    but a cell far from unit size (1e-140, 1e140) no longer underflows or overflows its edge products. Cells with no
+    finite positive entry as they are.
 
     >>> E = np.eye(3)[None, None] * 2.0**-470  # 3.3e-142: its product of three edge lengths underflows to 0
-    >>> float(np.prod(np.linalg.norm(E, axis=2))), float(det3(unit_edges(E))[0, 0] / np.prod(np.linalg.norm(unit_edges(E), axis=2)))
+    >>> U = unit_edges(E)
+    >>> float(np.prod(np.linalg.norm(E, axis=2))), float(det3(U)[0, 0] / np.prod(np.linalg.norm(U, axis=2)))
     (0.0, 1.0)
     """
     E = np.asarray(E, dtype=np.float64)
