@@ -98,8 +98,13 @@ def test_a_repair_far_from_the_input_surface_runs_again_leashed_and_keeps_the_ne
     monkeypatch.setattr(driver, "LEASH_MAX_SHARE", 1.0)  # a second run wherever it is far
     monkeypatch.setattr(driver, "LEASH_FRACTION", 0.001)  # held within 0.1% of the diagonal
     monkeypatch.setattr(driver, "LEASH_COST", 1.0)
-    r = hs.repair(P, H, jobs=0)
+    seen = []
+    r = hs.repair(P, H, jobs=0, callback=lambda e, V: seen.append(e["stage"]))
     info = r.stats["boundary_leash"]
+    # the second run's steps are named apart, for the callback (the CLI's progress line) and in the history
+    held = [s.endswith(", boundary held") for s in seen]
+    assert any(held) and not all(held) and held == sorted(held), seen
+    assert all(e["stage"].endswith(", boundary held") for e in r.history), [e["stage"] for e in r.history]
     bm = boundary_model(P, [("hexahedron", H)], tolerance=driver.SURFACE_TOLERANCE)
     assert info["deviation"] > driver.LEASH_TRIGGER * driver.FAR_FRACTION
     assert info["run"] and info["kept"] and info["vertices"] > 0
@@ -118,6 +123,7 @@ def test_a_repair_far_from_the_input_surface_runs_again_leashed_and_keeps_the_ne
     assert info2["run"] and not info2["kept"] and r2.success
     assert r2.stats["min_sj_after"] == info2["min_sj_free"] != info2["min_sj_leashed"]
     assert "not kept (the first run's mesh is returned)" in r2.summary()
+    assert not any(e["stage"].endswith(", boundary held") for e in r2.history)
     assert bm.deviation(r2.points).max() / diag == pytest.approx(info2["deviation"], rel=1e-12)
     # every boundary vertex of this ball is held: the projections take them nearer their input positions (a
     # projection that would lower the minimum stops short: the faces' middle vertices, pulled in, stay off the

@@ -255,6 +255,61 @@ def test_progress_bar_on_request(tmp_path, capsys):
     assert "%" not in capsys.readouterr().err
 
 
+def test_progress_bar_is_one_line_rewritten_in_place():
+    """Calls at the total (the repair's steps after its last bad cell) rewrite the bar's one line with the note
+    after it; the line ends once, at ``close``; a shorter line blanks out the longer one before it."""
+    import io
+    import time
+
+    from hexsos_plugins.cli.common import Progress
+
+    s = io.StringIO()
+    bar = Progress("repairing", enabled=True, stream=s)
+    bar(0, 5)
+    bar(5, 5)
+    for note in ("raising the quality, 3 s", "joint steps, 9 s", "x"):
+        time.sleep(0.12)
+        bar.note(note)
+        bar(5, 5)
+    bar.close()
+    bar.close()
+    out = s.getvalue()
+    assert out.count("\n") == 1 and out.endswith("\n"), repr(out)
+    frames = out[:-1].split("\r")[1:]
+    assert [f.rstrip() for f in frames] == [
+        "repairing [..............................]   0.0% 0/5",
+        "repairing [##############################] 100.0% 5/5",
+        "repairing [##############################] 100.0% 5/5  raising the quality, 3 s",
+        "repairing [##############################] 100.0% 5/5  joint steps, 9 s",
+        "repairing [##############################] 100.0% 5/5  x"], frames
+    assert len(frames[-1]) == len(frames[-2].rstrip())  # blanks over the longer line's tail
+    quiet = io.StringIO()
+    bar = Progress("repairing", enabled=False, stream=quiet)
+    bar(5, 5)
+    bar.note("joint steps")
+    bar.close()
+    assert quiet.getvalue() == ""
+
+
+def test_repair_progress_names_the_stage_on_one_line(tmp_path, capsys):
+    """``hexsos repair --progress``: one bar line, at the end the stage under way and its seconds after it (the
+    bar counts cells repaired, full long before the quality stages end)."""
+    import re
+
+    P, H = structured_grid(3)
+    P[(1 * 4 + 1) * 4 + 1, 2] -= 0.5
+    src, out = tmp_path / "in.vtu", tmp_path / "out.vtu"
+    meshio.write(str(src), meshio.Mesh(P, [("hexahedron", H)]))
+    assert cli.main(["repair", str(src), "-o", str(out), "--progress", "--no-fidelity"]) == 0
+    err = capsys.readouterr().err
+    lines = [ln for ln in err.split("\n") if "repairing [" in ln]
+    assert len(lines) == 1, err
+    last = lines[0].split("\r")[-1].rstrip()
+    words = ("untangling|smoothing|raising the quality|vertex steps|joint steps|standing quads back up|"
+             "back into the band")
+    assert re.fullmatch(rf"repairing \[#{{30}}\] 100\.0% (\d+)/\1  ({words}), \d+ s", last), last
+
+
 def test_interrupt_exits_130_without_traceback_or_output(tmp_path):
     """A real SIGINT while the kernel runs (sent from its first progress report, so no timing is involved):
     exit 130, one line, no traceback, no half-written output."""

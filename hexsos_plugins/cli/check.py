@@ -26,9 +26,11 @@ def _read_and_check(path, args):
     with threads_for(args.jobs):  # the orientation pass and the scaled Jacobian on the kernel's threads too
         mesh, orient = read_mesh(path, args.fix_orientation)
         bar = Progress("checking", enabled=args.progress)
-        result = check(mesh.points, mesh.cells, method=args.method, relaxation=args.relaxation, progress=bar,
-                       jobs=args.jobs, processes=args.processes, scheduler=args.scheduler, quality=True)
-        bar.close()
+        try:
+            result = check(mesh.points, mesh.cells, method=args.method, relaxation=args.relaxation, progress=bar,
+                           jobs=args.jobs, processes=args.processes, scheduler=args.scheduler, quality=True)
+        finally:  # the bar's line ends before the report or an error's line
+            bar.close()
     return mesh, orient, result
 
 

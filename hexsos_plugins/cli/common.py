@@ -1,6 +1,6 @@
 """What every ``hexsos`` subcommand shares: the progress bar, the run options, reading a mesh for a command.
 
-The command modules (:mod:`.cli_check`, :mod:`.cli_repair`, ...) import from here; :mod:`.cli` imports the
+The command modules (:mod:`.check`, :mod:`.repair`, ...) import from here; :mod:`.main` imports the
 command modules and assembles the parser. Nothing here imports a command module, so there is no circle.
 """
 
@@ -13,7 +13,11 @@ __all__ = ["Progress", "fail", "add_check_options", "add_run_options", "read_mes
 
 
 class Progress:
-    """A one-line progress bar on stderr, shown when stderr is a terminal (or when forced)."""
+    """A one-line progress bar on stderr, shown when stderr is a terminal (or when forced).
+
+    Called as ``bar(done, total)``; ``bar.note(text)`` puts a word after it (the repair's stage and its seconds
+    once every bad cell is repaired and the quality stages run on). The line is rewritten in place, never
+    repeated, and ended by :meth:`close`."""
 
     def __init__(self, label: str, *, enabled: bool | None = None, stream=None, min_seconds: float = 0.5):
         self.stream = stream or sys.stderr
@@ -23,29 +27,48 @@ class Progress:
         self.label = label
         self.t0 = time.perf_counter()
         self.min_seconds = 0.0 if enabled is True and stream is not None else min_seconds
-        self._shown = False
+        self._shown = False  # a line written and not yet ended
         self._last = 0.0
+        self._width = 0
+        self._state = None  # (done, total) of the last call
+        self._drawn_full = False
+        self._note = ""
 
     def __call__(self, done: int, total: int) -> None:
+        self._state = (done, total)
+        self._draw()
+
+    def note(self, text: str) -> None:
+        """Show ``text`` after the bar (replacing the last note), at the next redraw."""
+        self._note = text
+        if self._state is not None:
+            self._draw()
+
+    def _draw(self) -> None:
         if not self.enabled:
             return
+        done, total = self._state
+        full = done >= total
         now = time.perf_counter()
-        if now - self.t0 < self.min_seconds and done < total:
-            return
-        if now - self._last < 0.1 and done < total:
+        first_full = full and not self._drawn_full
+        if not first_full and (now - self.t0 < self.min_seconds or now - self._last < 0.1):
             return
         self._last = now
-        frac = done / total if total else 1.0
+        frac = min(done / total, 1.0) if total else 1.0
         bar = "#" * int(30 * frac) + "." * (30 - int(30 * frac))
-        self.stream.write(f"\r{self.label} [{bar}] {100 * frac:5.1f}% {done:,}/{total:,}")
+        line = f"{self.label} [{bar}] {100 * frac:5.1f}% {done:,}/{total:,}" + (f"  {self._note}" if self._note else "")
+        self.stream.write("\r" + line + " " * max(self._width - len(line), 0))
+        self._width = len(line)
         self._shown = True
-        if done >= total:
-            self.stream.write("\n")
+        self._drawn_full = self._drawn_full or full
         self.stream.flush()
 
     def close(self):
+        """End the bar's line (once); nothing if none was written."""
         if self._shown and self.enabled:
+            self.stream.write("\n")
             self.stream.flush()
+        self._shown = False
 
 
 def fail(msg: str, code: int = 2) -> int:

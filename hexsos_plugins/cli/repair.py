@@ -11,6 +11,7 @@ from __future__ import annotations
 import json
 import os
 import sys
+import time
 
 import numpy as np
 
@@ -161,7 +162,7 @@ def run(args) -> int:
                              " on 2 cores, then cached for every later repair)\n")
             sys.stderr.flush()
     bar = Progress("repairing", enabled=args.progress)
-    best = _Best()
+    best = _Best(bar)
     try:
         with _sigterm_as_interrupt():
             if curved:  # every block in the file's order, so that the cell arrays line up
@@ -182,16 +183,32 @@ def run(args) -> int:
     except KeyboardInterrupt:
         bar.close()
         return _interrupted(args, mesh, best)
+    finally:  # an error's one line on stderr starts on a line of its own
+        bar.close()
+
+
+# the repair's stages (its history's names) as the progress bar's note shows them
+_STAGE_WORDS = {"untangle": "untangling", "untangle (local)": "untangling", "smooth": "smoothing",
+                "quality": "raising the quality", "local": "vertex steps", "joint": "joint steps",
+                "straighten": "standing quads back up", "into the band": "back into the band"}
 
 
 class _Best:
     """The repair's callback: keeps a copy of the best mesh seen so far (fewest hexes not proven valid, then
-    the largest min det J), for the checkpoint written if the repair is interrupted."""
+    the largest min det J), for the checkpoint written if the repair is interrupted, and names the stage under
+    way and the seconds so far after the progress bar (whose count is of the cells repaired: full long before the
+    quality stages end)."""
 
-    def __init__(self):
+    def __init__(self, bar=None):
         self.key, self.points, self.entry = None, None, None
+        self.bar = bar
 
     def __call__(self, entry, points):
+        if self.bar is not None:
+            # the paper's method has iterations, not stages
+            stage, held, _ = entry.get("stage", f"iteration {entry['iteration']}").partition(", boundary held")
+            self.bar.note(f"{_STAGE_WORDS.get(stage, stage)}{', boundary held' if held else ''}, "
+                          f"{time.perf_counter() - self.bar.t0:.0f} s")
         bad = entry["invalid"] + entry.get("undecided", 0) + entry.get("other_invalid", 0)
         key = (-bad, entry.get("min_sj", entry["min_det"]) if bad == 0 else entry["min_det"])
         if self.key is None or key > self.key:

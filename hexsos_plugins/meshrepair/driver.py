@@ -991,6 +991,8 @@ class _Optimize:
         return _certificate(V, self.H, self.others, self.jobs, self.scheduler)
 
     def _entry(self, stage, V, r, o, seconds):
+        if self.leash is not None:  # the second run (:func:`_leashed_again`) names its stages apart
+            stage = f"{stage}, boundary held"
         e = {"iteration": len(self.history), "stage": stage, "invalid": int((r.status == 0).sum()),
              "undecided": int((r.status == -1).sum()), "other_invalid": _other_counts(o),
              "min_det": float(np.min(r.min_det)), "min_sj": float(np.min(_all_sj(V, self.blocks))),
