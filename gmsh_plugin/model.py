@@ -587,7 +587,7 @@ def _post(result):
 def repair_model(*, repair_method: str = "optimize", boundary: str | None = None, min_sj=None,
                  rho: float = 200.0, margin=None, pin_boundary: bool = False, max_iter=None,
                  method: str = "auto", relaxation: str = "quad2", progress=None, post_views: bool = True,
-                 pin_shared: bool | None = None, time_limit=None):
+                 pin_shared: bool | None = None, time_limit=None, callback=None):
     """Repair the current Gmsh model: move its nodes, re-check, re-post the views.
 
     Parameters
@@ -598,7 +598,7 @@ def repair_model(*, repair_method: str = "optimize", boundary: str | None = None
     boundary, min_sj, time_limit : keyword-only
         Passed to :func:`hexsos_plugins.repair` (default boundary: ``"slide"`` for optimize, ``"free"`` for
         paper; ``"fixed"`` with ``pin_boundary=True``).
-    rho, margin, max_iter, relaxation, progress : keyword-only
+    rho, margin, max_iter, relaxation, progress, callback : keyword-only
         Passed to :func:`hexsos_plugins.repair`; ``method`` is the kernel's (``"auto"`` / ``"sos"``, the
         paper's repair's u* finder).
     post_views : bool, keyword-only
@@ -639,7 +639,8 @@ def repair_model(*, repair_method: str = "optimize", boundary: str | None = None
     res = repair(points, hx.hexes, cells=cells, method=repair_method, boundary=boundary, min_sj=min_sj,
                  rho=rho, margin=margin, pin_boundary=pin_boundary, max_iter=max_iter, kernel_method=method,
                  relaxation=relaxation, progress=progress, pinned=pinned if pinned.any() else None,
-                 time_limit=time_limit, jobs=1 if repair_method == "paper" else 0)  # paper: processes
+                 time_limit=time_limit, callback=callback,
+                 jobs=1 if repair_method == "paper" else 0)  # paper: processes
     new = np.asarray(res.points, dtype=np.float64)
     moved = np.flatnonzero(np.any(new != points, axis=1))
     for i in moved:

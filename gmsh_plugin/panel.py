@@ -28,10 +28,12 @@ from __future__ import annotations
 
 import json
 import math
+import time
 
 import numpy as np
 
 from hexsos_plugins.errors import HexsosError, InvalidInputError
+from hexsos_plugins.meshrepair import step_words
 
 from gmsh_plugin.model import gmsh_api, check_model, repair_model
 
@@ -299,8 +301,10 @@ def run_repair(**kwargs):
 
     boundary = door_boundary(p["boundary"], p["repair_method"], p["pin_boundary"])
     max_iter = p["max_iter"] if p["repair_method"] == "paper" or p["max_iter"] < 100 else None
+    status = _RepairStatus() if gui_available() else None
     res = repair_model(repair_method=p["repair_method"], boundary=boundary, min_sj=p["min_sj"], rho=p["rho"],
-                       margin=p["margin"], max_iter=max_iter, method=p["method"], relaxation=p["relaxation"])
+                       margin=p["margin"], max_iter=max_iter, method=p["method"], relaxation=p["relaxation"],
+                       progress=status and status.progress, callback=status and status.step)
     after = res.extra["model_check"]
     c = after.counts()
     s = res.stats
@@ -317,6 +321,46 @@ def run_repair(**kwargs):
         msg += f"; {res.message}"
     _show_result(after, msg, min_sj=s.get("min_sj_after"))
     return res
+
+
+class _RepairStatus:
+    """Gmsh's status bar during a repair: the cells repaired, the stage under way and the seconds so far (the
+    quality stages run on after the last bad cell is repaired), the window redrawn at most every
+    :attr:`EVERY` seconds so that it does not freeze for the repair's minute."""
+
+    EVERY = 0.25
+
+    def __init__(self):
+        self.t0 = time.perf_counter()
+        self.cells = self.words = None
+        self._last = -math.inf
+
+    def progress(self, done, total):
+        self.cells = (done, total)
+        self._show()
+
+    def step(self, entry, points):
+        self.words = step_words(entry)
+        self._show()
+        return False  # never stops the repair
+
+    def text(self) -> str:
+        now = time.perf_counter()
+        out = "hexsos: repairing"
+        if self.cells is not None:
+            out += f", {self.cells[0]:,} of {self.cells[1]:,} cells repaired"
+        if self.words is not None:
+            out += f"; {self.words}, {now - self.t0:.0f} s"
+        return out
+
+    def _show(self):
+        now = time.perf_counter()
+        if now - self._last < self.EVERY:
+            return
+        self._last = now
+        gmsh = gmsh_api()
+        gmsh.fltk.setStatusMessage(self.text(), True)
+        gmsh.fltk.update()
 
 
 def gui_available() -> bool:

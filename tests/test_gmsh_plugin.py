@@ -502,6 +502,34 @@ def test_panel_repair_button_moves_the_nodes_in_the_model(session):
     np.testing.assert_allclose(disp, res.points - hx.points, atol=1e-12)
 
 
+def test_panel_repair_names_its_stage_in_the_status_bar(session, monkeypatch):
+    """With the GUI up, the repair writes the cells repaired, its stage and its seconds in Gmsh's status bar as
+    it goes (and lets the window redraw); the line is cleared at the end. Without the GUI, nothing."""
+    P, H = _repairable()
+    _load_scrambled(P, H, seed=4)
+    panel.define_parameters()
+    shown, updates = [], []
+    monkeypatch.setattr(gmsh.fltk, "setStatusMessage", lambda m, graphics=False: shown.append(m))
+    monkeypatch.setattr(gmsh.fltk, "update", lambda: updates.append(len(shown)))
+    _press(panel.ACTION_REPAIR)  # no GUI: no status line
+    assert panel.last_result().success and shown == [] and updates == []
+    _load_scrambled(P, H, seed=4)
+    monkeypatch.setattr(panel, "gui_available", lambda: True)
+    monkeypatch.setattr(gmsh.graphics, "draw", lambda: None)
+    _press(panel.ACTION_REPAIR)
+    res = panel.last_result()
+    assert res.success, res.message
+    assert shown[0] == "hexsos: repairing..." and shown[-1] == ""
+    during = shown[1:-1]
+    assert len(during) >= 2 and all(m.startswith("hexsos: repairing, ") for m in during), shown
+    n = res.stats["invalid_before"]
+    assert during[0] == f"hexsos: repairing, 0 of {n:,} cells repaired", during
+    words = "untangling|smoothing|raising the quality|vertex steps|joint steps|standing quads back up"
+    assert any(re.fullmatch(rf"hexsos: repairing, {n} of {n} cells repaired; ({words})[a-z ,]*, \d+ s", m)
+               for m in during), during
+    assert all(i >= 2 for i in updates[:len(during)])  # each status line drawn by an update
+
+
 def test_repair_model_pins_or_protects_nodes_shared_with_tetrahedra(session):
     P, H = hexes_to_mesh(inside_invalid_hex())
     ntags, _ = gm.add_hex_mesh(P, H)

@@ -4,6 +4,7 @@ expected value comes from ``hexsos_plugins.check`` / ``repair`` called on the sa
 
 import importlib.util
 import os
+import re
 
 import numpy as np
 import pytest
@@ -449,10 +450,17 @@ def test_repair_filter_certifies_and_reports_the_displacement(damaged):
     before = fingerprint(damaged)
     f = HexSOSRepairFilter()
     msgs = Messages(f)
+    seen = []
+    f.AddObserver(vtkCommand.ProgressEvent, lambda o, e: seen.append((o.GetProgress(), o.GetProgressText())))
     f.SetInputDataObject(0, damaged)
     assert f.Update()
     r = f.GetResult()
     assert r.success and not msgs.errors and not msgs.warnings
+    # ParaView's progress bar shows the algorithm's progress text: the stage under way, also once the bar (the
+    # cells repaired) is full; the text is cleared at the end
+    words = "untangling|smoothing|raising the quality|vertex steps|joint steps|standing quads back up"
+    assert any(p == 1.0 and t and re.fullmatch(rf"hexsos repair: ({words})[a-z ,]*, \d+ s", t) for p, t in seen), seen
+    assert seen[0] == (0.0, None) and f.GetProgressText() is None
     out = f.GetOutputDataObject(0)
     types_in = np.array([damaged.GetCellType(i) for i in range(damaged.GetNumberOfCells())])
     types_out = np.array([out.GetCellType(i) for i in range(out.GetNumberOfCells())])

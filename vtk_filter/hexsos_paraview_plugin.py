@@ -53,6 +53,7 @@ from __future__ import annotations
 import inspect
 import os
 import sys
+import time
 
 if not hasattr(inspect, "getargspec"):  # ParaView 5.11's decorators call it (Python >= 3.11 removed it)
     inspect.getargspec = inspect.getfullargspec
@@ -646,6 +647,7 @@ class HexSOSRepairFilter(_HexSOSBase):
         self._min_sj = 0.0
         self._feature_angle = 45.0
         self._time_limit = 0.0
+        self._t0 = time.perf_counter()  # the start of the last repair (the progress text's seconds)
 
     @smproperty.stringvector(name="RepairMethod", label="Repair Method", default_values="optimize",
                              number_of_elements=1)
@@ -761,6 +763,11 @@ class HexSOSRepairFilter(_HexSOSBase):
         return self._pin_non_hex
 
     def _abort(self, entry, points):
+        """The repair's callback: names the stage under way for ParaView's progress bar (the bar's fraction
+        counts the cells repaired: full long before the quality stages end) and stops on the abort button."""
+        from hexsos_plugins.meshrepair import step_words
+
+        self.SetProgressText(f"hexsos repair: {step_words(entry)}, {time.perf_counter() - self._t0:.0f} s")
         return bool(self.GetAbortExecute())
 
     def _execute(self, inp, outputs):
@@ -795,12 +802,16 @@ class HexSOSRepairFilter(_HexSOSBase):
                 pinned[np.asarray(conn, dtype=np.int64)[idx]] = True
         self.UpdateProgress(0.0)
         boundary = door_boundary(self._boundary, self._repair_method, self._pin_boundary)
-        result = repair(P, H, cells=others or None, method=self._repair_method, boundary=boundary,
-                        min_sj=self._min_sj or None, feature_angle=self._feature_angle,
-                        time_limit=self._time_limit or None, rho=self._rho, margin=self._margin,
-                        max_iter=self._max_iterations or None, kernel_method=self._method,
-                        relaxation=self._relaxation, progress=self._progress, callback=self._abort, pinned=pinned,
-                        jobs=1 if self._repair_method == "paper" else 0)  # the paper's: processes, not threads
+        self._t0 = time.perf_counter()
+        try:
+            result = repair(P, H, cells=others or None, method=self._repair_method, boundary=boundary,
+                            min_sj=self._min_sj or None, feature_angle=self._feature_angle,
+                            time_limit=self._time_limit or None, rho=self._rho, margin=self._margin,
+                            max_iter=self._max_iterations or None, kernel_method=self._method,
+                            relaxation=self._relaxation, progress=self._progress, callback=self._abort,
+                            pinned=pinned, jobs=1 if self._repair_method == "paper" else 0)  # paper: processes
+        finally:
+            self.SetProgressText(None)  # the next run's bar shows the filter's own name again
         out.ShallowCopy(inp)
         if is_voxel.any():
             _voxels_as_hexahedra(out, inp, types, cell_ids[is_voxel], H[is_voxel])

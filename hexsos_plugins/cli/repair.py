@@ -187,12 +187,6 @@ def run(args) -> int:
         bar.close()
 
 
-# the repair's stages (its history's names) as the progress bar's note shows them
-_STAGE_WORDS = {"untangle": "untangling", "untangle (local)": "untangling", "smooth": "smoothing",
-                "quality": "raising the quality", "local": "vertex steps", "joint": "joint steps",
-                "straighten": "standing quads back up", "into the band": "back into the band"}
-
-
 class _Best:
     """The repair's callback: keeps a copy of the best mesh seen so far (fewest hexes not proven valid, then
     the largest min det J), for the checkpoint written if the repair is interrupted, and names the stage under
@@ -200,15 +194,14 @@ class _Best:
     quality stages end)."""
 
     def __init__(self, bar=None):
+        from ..meshrepair import step_words
+
         self.key, self.points, self.entry = None, None, None
-        self.bar = bar
+        self.bar, self.words = bar, step_words
 
     def __call__(self, entry, points):
         if self.bar is not None:
-            # the paper's method has iterations, not stages
-            stage, held, _ = entry.get("stage", f"iteration {entry['iteration']}").partition(", boundary held")
-            self.bar.note(f"{_STAGE_WORDS.get(stage, stage)}{', boundary held' if held else ''}, "
-                          f"{time.perf_counter() - self.bar.t0:.0f} s")
+            self.bar.note(f"{self.words(entry)}, {time.perf_counter() - self.bar.t0:.0f} s")
         bad = entry["invalid"] + entry.get("undecided", 0) + entry.get("other_invalid", 0)
         key = (-bad, entry.get("min_sj", entry["min_det"]) if bad == 0 else entry["min_det"])
         if self.key is None or key > self.key:

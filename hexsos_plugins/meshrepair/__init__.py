@@ -16,7 +16,8 @@ May import: the certify, kernel and cells wings, :class:`hexsos_plugins.io.mesh`
 from .driver import check_cells, repair, repair_hex, repair_paper
 from .options import (BOUNDARY_MODES, DEFAULT_MARGIN, DEFAULT_RHO, METHODS, SURFACE_TOLERANCE, default_boundary,
                       door_boundary, resolve_boundary)
-from .result import RepairResult
+from .result import RepairResult, step_words
 
 __all__ = ["repair", "repair_hex", "repair_paper", "RepairResult", "check_cells", "METHODS", "BOUNDARY_MODES",
-           "DEFAULT_MARGIN", "DEFAULT_RHO", "SURFACE_TOLERANCE", "default_boundary", "resolve_boundary", "door_boundary"]
+           "DEFAULT_MARGIN", "DEFAULT_RHO", "SURFACE_TOLERANCE", "default_boundary", "resolve_boundary", "door_boundary",
+           "step_words"]

@@ -13,7 +13,23 @@ from ..certify import CheckResult
 from ..cells.quality import SHORT_EDGE_RATIO
 from .boundary import TILT_DEGREES
 
-__all__ = ["RepairResult", "readonly"]
+__all__ = ["RepairResult", "readonly", "step_words"]
+
+
+# the repair's stages (its history's names) in the words a progress line shows
+_STAGE_WORDS = {"untangle": "untangling", "untangle (local)": "untangling", "smooth": "smoothing",
+                "quality": "raising the quality", "local": "vertex steps", "joint": "joint steps",
+                "straighten": "standing quads back up", "into the band": "back into the band",
+                "skeleton": "untangling the straight skeleton"}
+_HELD = ", boundary held"
+
+
+def step_words(entry: dict) -> str:
+    """The stage of a history entry (what a repair's ``callback`` receives) in words: ``"joint steps"``,
+    ``"untangling, boundary held"`` (the boundary's second run), ``"iteration 3"`` (the paper's method)."""
+    stage = entry.get("stage", f"iteration {entry.get('iteration', 0)}")
+    base, held, _ = stage.partition(_HELD)
+    return _STAGE_WORDS.get(base, base) + (_HELD if held else "")
 
 
 @dataclass
