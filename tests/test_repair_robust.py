@@ -601,3 +601,21 @@ def test_a_cell_folded_between_pinned_feature_corners_is_repaired_by_sliding_the
     assert not r.success and list(_not_valid(r.points, H)) == [0]
     assert "all 8 vertices pinned (feature corners of the boundary" in r.message
     assert np.array_equal(r.points, P)
+
+
+def test_a_point_no_cell_uses_is_no_part_of_the_mesh_size():
+    """The report's diagonal (``moved_over_1pct``) is that of the points the cells use: a point far away that no
+    cell uses (at 1e200 the box's diagonal overflowed, with a RuntimeWarning) changes nothing, and stays put."""
+    import warnings
+
+    P, H = structured_grid(3)
+    P[(1 * 4 + 1) * 4 + 1, 2] -= 0.5
+    ref = hs.repair(P, H, jobs=0)
+    assert ref.success and ref.stats["moved_over_1pct"] > 0
+    for far in (1e3, 1e200):
+        Q = np.vstack([P, [[far, -far, far]]])
+        with warnings.catch_warnings():
+            warnings.simplefilter("error", RuntimeWarning)
+            r = hs.repair(Q, H, jobs=0)
+        assert r.success and r.stats["moved_over_1pct"] == ref.stats["moved_over_1pct"]
+        assert np.array_equal(r.points[-1], Q[-1]) and np.array_equal(r.points[:-1], ref.points)

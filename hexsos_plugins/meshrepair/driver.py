@@ -1367,7 +1367,9 @@ class _Optimize:
 
         sj1 = _all_sj(V, blocks)
         disp = V - P0
-        diag = float(np.linalg.norm(P0.max(axis=0) - P0.min(axis=0))) if N else 0.0
+        # the box of the points the cells use: a point no cell uses, far away, is no part of the mesh's size
+        used = np.unique(np.concatenate([c.ravel() for _, c in blocks + pinned_by] + [np.zeros(0, dtype=np.int64)]))
+        diag = float(np.linalg.norm(P0[used].max(axis=0) - P0[used].min(axis=0))) if used.size else 0.0
         norm = np.sqrt((disp * disp).sum(axis=1))
         movedv = norm > 0
         s1 = summary(sj1)
