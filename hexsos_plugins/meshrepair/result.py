@@ -26,10 +26,10 @@ _HELD = ", boundary held"
 
 def step_words(entry: dict) -> str:
     """The stage of a history entry (what a repair's ``callback`` receives) in words: ``"joint steps"``,
-    ``"untangling, boundary held"`` (the boundary's second run), ``"iteration 3"`` (the paper's method)."""
+    ``"untangling, boundary held"`` (the boundary's second run: ``boundary_held`` in the entry), ``"iteration 3"``
+    (the paper's method)."""
     stage = entry.get("stage", f"iteration {entry.get('iteration', 0)}")
-    base, held, _ = stage.partition(_HELD)
-    return _STAGE_WORDS.get(base, base) + (_HELD if held else "")
+    return _STAGE_WORDS.get(stage, stage) + (_HELD if entry.get("boundary_held") else "")
 
 
 @dataclass
