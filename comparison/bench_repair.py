@@ -186,7 +186,13 @@ def _published_meshes(names=None):
         if not os.path.exists(path):
             print(f"({rel} skipped: {path} absent)", file=sys.stderr)
             continue
-        yield os.path.splitext(os.path.basename(rel))[0], read(path)
+        m = read(path)
+        mirrored = m.mirrored_cells()
+        if mirrored.any():  # as `hexsos repair --fix-orientation`: the repair refuses a mesh folded by its node order
+            print(f"({rel}: {int(mirrored.sum())} cells written in the other handedness than their neighbours "
+                  "flipped first, as `hexsos repair --fix-orientation` does)", file=sys.stderr)
+            m = m.flipped(cells=mirrored)
+        yield os.path.splitext(os.path.basename(rel))[0], m
 
 
 def starts(n, names=None, jobs=0, feature_angle=45.0):

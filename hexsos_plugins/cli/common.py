@@ -156,8 +156,9 @@ def read_mesh(path, fix_orientation: bool):
         rows = np.flatnonzero(mirrored)
         shown = ", ".join(map(str, rows[:5])) + (", ..." if len(rows) > 5 else "")
         said.append(" and ".join(f"{k} of the {counts[t]} {t} cells" for t, k in some.items())
-                    + f" (cells {shown}) are written in the mirrored node order: det J < 0 at their centres, and "
-                    "their faces meet their neighbours' the wrong way round or their block is negative throughout)")
+                    + f" (cells {shown}) are written in the mirrored node order: their faces meet their neighbours' "
+                    "the wrong way round (valid or not cell by cell, they fold over them), or their block is "
+                    "negative throughout)")
     if not fix_orientation:
         raise LeftHandedMeshError(f"{path} is {'partly mirrored' if some else 'left-handed'}: {'; '.join(said)}. "
                                   "Pass --fix-orientation to flip them")

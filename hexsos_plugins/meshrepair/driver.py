@@ -69,6 +69,7 @@ from .fidelity import FAR_FRACTION
 from .paper import MEMORY, boundary_vertex_mask, hex_edge_length, repair_hex, repair_paper
 from .result import RepairResult, readonly
 from .scale import rescaled, unit_scale
+from .orientation import refuse_folded
 
 __all__ = ["repair", "repair_hex", "repair_paper", "RepairResult", "DEFAULT_MARGIN", "DEFAULT_RHO", "MEMORY",
            "hex_edge_length", "boundary_vertex_mask", "check_cells", "METHODS", "BOUNDARY_MODES",
@@ -611,6 +612,7 @@ def repair(points, hexes, *, cells=None, method: str = "optimize", boundary: str
     H = np.array(H, dtype=np.int64, copy=True)
     N = P0.shape[0]
     others = _validate_cells(cells, N)
+    refuse_folded(P0, H, others)  # folded by its node order: no placement of the points is a mesh
     pin = np.zeros(N, dtype=bool)
     if pinned is not None:
         pm = np.asarray(pinned, dtype=bool)
@@ -991,13 +993,13 @@ class _Optimize:
         return _certificate(V, self.H, self.others, self.jobs, self.scheduler)
 
     def _entry(self, stage, V, r, o, seconds):
-        if self.leash is not None:  # the second run (:func:`_leashed_again`) names its stages apart
-            stage = f"{stage}, boundary held"
         e = {"iteration": len(self.history), "stage": stage, "invalid": int((r.status == 0).sum()),
              "undecided": int((r.status == -1).sum()), "other_invalid": _other_counts(o),
              "min_det": float(np.min(r.min_det)), "min_sj": float(np.min(_all_sj(V, self.blocks))),
              "sos_steps": int(r.status.size), "projection_steps": 0,
              "moved_vertices": int(np.any(V != self.P0, axis=1).sum()), "seconds": float(seconds)}
+        if self.leash is not None:  # the second run's steps (:func:`_leashed_again`), told apart
+            e["boundary_held"] = True
         return e
 
     def _step(self, stage, V):

@@ -1,0 +1,93 @@
+"""A mesh folded over itself by its node order (``Mesh.folded_cells``, ``meshrepair.orientation``): cells written
+in the other handedness than their neighbours lie, once valid, on the same side of the faces they share with them.
+The kernel's certificate, cell by cell, does not see it; the repair refuses such a mesh and names the cells, and
+once they are flipped it untangles them out of the fold."""
+
+import os
+
+import numpy as np
+import pytest
+
+import hexsos_plugins as hs
+from hexsos_plugins.errors import LeftHandedMeshError
+from hexsos_plugins.examples import structured_grid
+from hexsos_plugins.io.mesh import Mesh
+
+FLIP = [0, 3, 2, 1, 4, 7, 6, 5]  # a hex's node order mirrored
+KITTEN = os.path.join(os.path.dirname(__file__), "..", "..", "shared", "data", "hexalab", "kitten_with_bifur_3.mesh")
+
+
+def _column():
+    """Three unit hexes stacked along z, the middle one written mirrored and its top face pushed below its bottom
+    (z 2 -> 0.5): every hex is valid by its own node order, and the middle one lies inside the lowest."""
+    xy = np.array([[0, 0], [1, 0], [1, 1], [0, 1]], dtype=float)
+    P = np.concatenate([np.column_stack([xy, np.full(4, z)]) for z in (0.0, 1.0, 0.5, 3.0)])
+    H = np.array([[0, 1, 2, 3, 4, 5, 6, 7], [4, 5, 6, 7, 8, 9, 10, 11], [8, 9, 10, 11, 12, 13, 14, 15]])
+    H[1] = H[1][FLIP]
+    return P, H
+
+
+def _sides(P, H, a, b):
+    """The signed distances of hexes a's and b's centroids from the plane of the face they share."""
+    shared = [v for v in H[a] if v in H[b]]
+    c = P[shared].mean(axis=0)
+    n = np.linalg.svd(P[shared] - c)[2][2]
+    return float((P[H[a]].mean(axis=0) - c) @ n), float((P[H[b]].mean(axis=0) - c) @ n)
+
+
+def test_a_fold_valid_cell_by_cell_is_named_refused_and_once_flipped_untangled():
+    P, H = _column()
+    assert (hs.check(P, H).status == 1).all()  # every hex valid by its own corners and coefficients
+    a, b = _sides(P, H, 0, 1)
+    assert a * b > 0  # ... and the middle one on the lowest's side of their face: they overlap
+    m = Mesh.from_arrays(P, H)
+    assert np.flatnonzero(m.folded_cells()).tolist() == [1]
+    assert np.flatnonzero(m.mirrored_cells()).tolist() == [1]
+    with pytest.raises(LeftHandedMeshError, match=r"1 cell is written in the other handedness .*cells 1,? "):
+        hs.repair(P, H, boundary="free")
+    with pytest.raises(LeftHandedMeshError):
+        hs.repair(P, H, method="paper")
+    f = m.flipped(cells=m.mirrored_cells())
+    assert not f.folded_cells().any()
+    r0 = hs.check(f.points, f.hexes)
+    assert r0.status[1] == 0 and (r0.status[[0, 2]] == 1).all()  # flipped, the fold is an invalid hex
+    r = hs.repair(f.points, f.hexes, boundary="free", jobs=0)
+    assert r.success and (hs.check(r.points, f.hexes).status == 1).all()
+    for x, y in ((0, 1), (1, 2)):
+        s, t = _sides(r.points, f.hexes, x, y)
+        assert s * t < 0  # each on its own side of the faces it shares: unfolded
+
+
+def test_a_hex_written_mirrored_inside_a_grid_is_named_and_a_tangled_grid_is_not():
+    P, H = structured_grid(3)
+    H2 = H.copy()
+    H2[13] = H2[13][FLIP]
+    assert np.flatnonzero(Mesh.from_arrays(P, H2).folded_cells()).tolist() == [13]
+    with pytest.raises(LeftHandedMeshError, match="cells 13"):
+        hs.repair(P, H2)
+    # a vertex pushed through its neighbours: inverted hexes, one handedness, nothing folded by the node order
+    Q = P.copy()
+    Q[(1 * 4 + 1) * 4 + 1, 2] -= 0.5
+    assert (hs.check(Q, H).status == 0).any()
+    assert not Mesh.from_arrays(Q, H).folded_cells().any()
+    assert hs.repair(Q, H, jobs=0).success
+    # two classes as large: both named (which is mirrored is the geometry's call), neither by the strict rule
+    P2, H2 = structured_grid(2)
+    H3 = H2.copy()
+    H3[4:] = H3[4:][:, FLIP]
+    m = Mesh.from_arrays(P2, H3)
+    assert m.folded_cells().all() and not m.folded_cells(strict=True).any()
+
+
+@pytest.mark.skipif(not os.path.exists(KITTEN), reason="the shared HexaLab mesh is absent")
+def test_the_published_kitten_folds_over_itself_at_40_hexes():
+    from hexsos_plugins.io import read
+
+    m = read(KITTEN)
+    folded = np.flatnonzero(m.folded_cells())
+    assert folded.size == 40 and 23908 in folded
+    assert np.array_equal(np.flatnonzero(m.mirrored_cells()), folded)
+    assert (hs.check(m.points, m.hexes).status[folded] == 1).sum() >= 30  # most of them valid cell by cell
+    with pytest.raises(LeftHandedMeshError, match="40 cells"):
+        hs.repair(m.points, m.hexes)
+    assert not m.flipped(cells=m.mirrored_cells()).folded_cells().any()
