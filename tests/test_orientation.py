@@ -91,3 +91,27 @@ def test_the_published_kitten_folds_over_itself_at_40_hexes():
     with pytest.raises(LeftHandedMeshError, match="40 cells"):
         hs.repair(m.points, m.hexes)
     assert not m.flipped(cells=m.mirrored_cells()).folded_cells().any()
+
+
+def test_hexsos_repair_names_the_fold_and_repairs_it_with_fix_orientation(tmp_path, capsys):
+    """``hexsos repair`` reads a file folded by its node order as an error naming the cell (exit 2, one line, no
+    traceback); with ``--fix-orientation`` it flips it and repairs (exit 0). ``hexsos check`` judges each cell as
+    written (every one valid here) and does not read every face for folds."""
+    import meshio
+
+    from hexsos_plugins import cli
+
+    P, H = _column()
+    src, out = tmp_path / "fold.vtu", tmp_path / "out.vtu"
+    meshio.write(src, meshio.Mesh(P, [("hexahedron", H)]))
+    assert cli.main(["repair", str(src), "-o", str(out), "--no-progress", "--no-fidelity"]) == 2
+    err = capsys.readouterr().err
+    assert "partly mirrored" in err and "(cells 1)" in err and "Traceback" not in err and not out.exists()
+    assert cli.main(["repair", str(src), "-o", str(out), "--no-progress", "--no-fidelity", "--boundary", "free",
+                     "--fix-orientation", "--json"]) == 0
+    capsys.readouterr()
+    m = meshio.read(out)
+    H2 = m.cells_dict["hexahedron"]
+    assert np.array_equal(H2[1], H[1][FLIP]) and not Mesh.from_arrays(m.points, H2).folded_cells().any()
+    assert (hs.check(m.points, H2).status == 1).all()
+    assert cli.main(["check", str(src), "--no-progress"]) == 0

@@ -123,13 +123,15 @@ def announce_compilation(args) -> bool:
     return True
 
 
-def read_mesh(path, fix_orientation: bool):
+def read_mesh(path, fix_orientation: bool, *, folded: bool = False):
     """Read ``path``; cells written in the mirrored node order are an error naming them, unless
     ``fix_orientation``, which flips exactly those. Mirrored: every cell of a type negatively oriented (the file
     mirrors that type's node order), or the cells that :meth:`~hexsos_plugins.io.mesh.Mesh.mirrored_cells` finds
     by the faces they share and by blocks (a mirrored region beside a right-handed one, a block written
     mirrored). Returns ``(mesh, orientation)`` with orientation ``"right-handed"``, ``"mixed"``, ``"left-handed
-    (TYPES)"`` or ``"mirrored (COUNTS)"``; the last two are flipped."""
+    (TYPES)"`` or ``"mirrored (COUNTS)"``; the last two are flipped. ``folded``: also the cells written in the
+    other handedness than most of their part whatever their signs (:meth:`~hexsos_plugins.io.mesh.Mesh.folded_cells`:
+    the repair's, which refuses a mesh folded so; it reads every face, seconds on a million hexes)."""
     import numpy as np
 
     from ..cells.elements import CELL_TYPES
@@ -140,7 +142,7 @@ def read_mesh(path, fix_orientation: bool):
     det = mesh.centre_det()  # one pass for both
     overall, per_type = mesh.orientation_and_types(det)
     left = [t for t, o in per_type.items() if o == "left-handed"]
-    mirrored = mesh.mirrored_cells(det)
+    mirrored = mesh.mirrored_cells(det, folded=folded)
     for t in left:
         mirrored[mesh.cell_types == CELL_TYPES.index(t)] = False
     if not left and not mirrored.any():

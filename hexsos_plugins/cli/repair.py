@@ -135,7 +135,7 @@ def run(args) -> int:
             raise MeshWriteError(f"{target}: cannot write, the directory {directory} does not exist")
         if not os.access(directory, os.W_OK):
             raise MeshWriteError(f"{target}: cannot write, the directory {directory} is not writable")
-    mesh, orient = read_mesh(args.mesh, args.fix_orientation)
+    mesh, orient = read_mesh(args.mesh, args.fix_orientation, folded=True)  # the repair refuses a folded mesh
     from ..meshrepair.curved import needs_curved
 
     curved = args.method == "optimize" and needs_curved(mesh.hexes, other_cells(mesh))
