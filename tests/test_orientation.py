@@ -115,3 +115,18 @@ def test_hexsos_repair_names_the_fold_and_repairs_it_with_fix_orientation(tmp_pa
     assert np.array_equal(H2[1], H[1][FLIP]) and not Mesh.from_arrays(m.points, H2).folded_cells().any()
     assert (hs.check(m.points, H2).status == 1).all()
     assert cli.main(["check", str(src), "--no-progress"]) == 0
+
+
+def test_where_the_signs_name_the_larger_class_the_smaller_is_not_named_too():
+    """A column of three unit hexes, the lower two written mirrored (negative at their centres), the top one as it
+    should be: the signs name the lower two; the fold rule, which would name the smaller class (the top one), stays
+    out of that part, so that flipping what ``mirrored_cells`` names leaves one handedness and every hex valid."""
+    xy = np.array([[0, 0], [1, 0], [1, 1], [0, 1]], dtype=float)
+    P = np.concatenate([np.column_stack([xy, np.full(4, z)]) for z in (0.0, 1.0, 2.0, 3.0)])
+    H = np.array([[4 * k + i for i in range(8)] for k in range(3)])
+    H[:2] = H[:2][:, FLIP]
+    m = Mesh.from_arrays(P, H)
+    assert np.flatnonzero(m.folded_cells()).tolist() == [2]  # the smaller class, by topology alone
+    assert np.flatnonzero(m.mirrored_cells()).tolist() == [0, 1]
+    f = m.flipped(cells=m.mirrored_cells())
+    assert not f.folded_cells().any() and (hs.check(f.points, f.hexes).status == 1).all()
