@@ -80,7 +80,7 @@ def test_a_hex_written_mirrored_inside_a_grid_is_named_and_a_tangled_grid_is_not
 
 
 @pytest.mark.skipif(not os.path.exists(KITTEN), reason="the shared HexaLab mesh is absent")
-def test_the_published_kitten_folds_over_itself_at_40_hexes():
+def test_the_published_kitten_folds_over_itself_at_40_hexes(capsys):
     from hexsos_plugins.io import read
 
     m = read(KITTEN)
@@ -91,6 +91,11 @@ def test_the_published_kitten_folds_over_itself_at_40_hexes():
     with pytest.raises(LeftHandedMeshError, match="40 cells"):
         hs.repair(m.points, m.hexes)
     assert not m.flipped(cells=m.mirrored_cells()).folded_cells().any()
+    # hexsos check names the same 40 (a hex negative at its centre: the mesh is read for folds), as repair does
+    from hexsos_plugins import cli
+
+    assert cli.main(["check", KITTEN, "--no-progress"]) == 2
+    assert "40 of the 34880 hexahedron cells" in capsys.readouterr().err
 
 
 def test_hexsos_repair_names_the_fold_and_repairs_it_with_fix_orientation(tmp_path, capsys):

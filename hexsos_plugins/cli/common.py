@@ -131,7 +131,8 @@ def read_mesh(path, fix_orientation: bool, *, folded: bool = False):
     mirrored). Returns ``(mesh, orientation)`` with orientation ``"right-handed"``, ``"mixed"``, ``"left-handed
     (TYPES)"`` or ``"mirrored (COUNTS)"``; the last two are flipped. ``folded``: also the cells written in the
     other handedness than most of their part whatever their signs (:meth:`~hexsos_plugins.io.mesh.Mesh.folded_cells`:
-    the repair's, which refuses a mesh folded so; it reads every face, seconds on a million hexes)."""
+    the repair's, which refuses a mesh folded so; it reads every face, seconds on a million hexes); read so anyway
+    when some cell is negative at its centre."""
     import numpy as np
 
     from ..cells.elements import CELL_TYPES
@@ -142,7 +143,8 @@ def read_mesh(path, fix_orientation: bool, *, folded: bool = False):
     det = mesh.centre_det()  # one pass for both
     overall, per_type = mesh.orientation_and_types(det)
     left = [t for t, o in per_type.items() if o == "left-handed"]
-    mirrored = mesh.mirrored_cells(det, folded=folded)
+    # a mesh with a cell negative at its centre is read for folds too (what it names is what a repair would flip)
+    mirrored = mesh.mirrored_cells(det, folded=folded or bool((det < 0).any()))
     for t in left:
         mirrored[mesh.cell_types == CELL_TYPES.index(t)] = False
     if not left and not mirrored.any():
