@@ -259,6 +259,14 @@ def _runs(key):
     return order, starts, np.diff(np.append(starts, len(key)))
 
 
+def _smaller_class(same, other, *, strict):
+    """For the cells of :meth:`Mesh._handedness_classes` (their class labels ``same`` and ``other``): in a part
+    split into two classes, whether the cell's class is the smaller (or, unless ``strict``, as large)."""
+    counts = np.bincount(same, minlength=int(max(same.max(), other.max())) + 1)
+    smaller = counts[same] < counts[other] if strict else counts[same] <= counts[other]
+    return (same != other) & smaller
+
+
 def _unique_rows(key):
     """Rows of ``key`` (F, k), sorted node tuples, that occur exactly once, sorted."""
     if len(key) == 0:
@@ -591,11 +599,9 @@ class Mesh:
             cell, same, other = self._handedness_classes()
             if len(cell):
                 part = np.minimum(same, other)
-                counts = np.bincount(same, minlength=int(max(same.max(), other.max())) + 1)
-                split = same != other
-                smaller = split & (counts[same] < counts[other])
-                larger_named = np.zeros(counts.size, dtype=bool)
-                larger_named[part[out[cell] & split & ~smaller]] = True
+                smaller = _smaller_class(same, other, strict=True)
+                larger_named = np.zeros(int(max(same.max(), other.max())) + 1, dtype=bool)
+                larger_named[part[out[cell] & (same != other) & ~smaller]] = True
                 out[cell] |= smaller & ~larger_named[part]
         return out
 
@@ -633,9 +639,7 @@ class Mesh:
         out = np.zeros(self.n_cells, dtype=bool)
         cell, same, other = self._handedness_classes()
         if len(cell):
-            counts = np.bincount(same, minlength=int(max(same.max(), other.max())) + 1)
-            smaller = counts[same] < counts[other] if strict else counts[same] <= counts[other]
-            out[cell] = (same != other) & smaller
+            out[cell] = _smaller_class(same, other, strict=strict)
         return out
 
     def _handedness_classes(self, near=None):

@@ -650,8 +650,8 @@ def _leashed_again(first, res, run):
     optimizer). Only with ``boundary="slide"``, a certified first result, no time limit and no local fix, only
     where the input's cells around them were valid (where they were not, the surface is folded and must move: the
     bunny's dent), only if they are at most ``LEASH_MAX_SHARE`` of the boundary vertices and some slid farther than
-    the leash along the surface (else it would hold nothing). The second run shares the first's clock, and runs only if ``LEASH_MIN_SECONDS`` are left of
-    ``REPAIR_SECONDS``; it is kept if certified, nearer the input's surface, and its minimum scaled Jacobian at most
+    the leash along the surface (else it would hold nothing). The second run shares the first's clock, and runs
+    only if ``LEASH_MIN_SECONDS`` are left of ``REPAIR_SECONDS``; it is kept if certified, nearer the input's surface, and its minimum scaled Jacobian at most
     ``LEASH_COST`` below the first's (a target the first reached, reached). ``stats["boundary_leash"]`` says what
     was done."""
     bm = first.bm
