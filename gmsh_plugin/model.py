@@ -587,7 +587,7 @@ def _post(result):
 def repair_model(*, repair_method: str = "optimize", boundary: str | None = None, min_sj=None,
                  rho: float = 200.0, margin=None, pin_boundary: bool = False, max_iter=None,
                  method: str = "auto", relaxation: str = "quad2", progress=None, post_views: bool = True,
-                 pin_shared: bool | None = None, time_limit=None, callback=None):
+                 pin_shared: bool | None = None, time_limit=None, callback=None, fix_orientation: bool = False):
     """Repair the current Gmsh model: move its nodes, re-check, re-post the views.
 
     Parameters
@@ -608,6 +608,12 @@ def repair_model(*, repair_method: str = "optimize", boundary: str | None = None
         -- linear tetrahedra, prisms and pyramids are repaired with the hexes by ``"optimize"`` (their nodes move
         only by steps that keep them valid), their nodes pinned by ``"paper"``; nodes of elements of other types
         (higher order) are pinned. Every 3-D element is checked: the repair succeeds only if all are valid.
+    fix_orientation : bool, keyword-only
+        Elements written in the mirrored node order (a type all negatively oriented, a region or element whose
+        faces meet its neighbours' the wrong way round: it folds over them whatever its nodes' places;
+        :func:`hexsos_plugins.io.handedness.right_handed`) are an error naming them (LeftHandedMeshError) unless
+        this is True: then they are reversed in the model first (``gmsh.model.mesh.reverseElements``), their
+        tags in ``extra["reversed_element_tags"]``. Default False: the model's elements are not changed unasked.
 
     Only nodes that moved are written back, with ``gmsh.model.mesh.setNode``. Parametric coordinates of nodes
     on CAD entities are left as they were.
@@ -622,7 +628,7 @@ def repair_model(*, repair_method: str = "optimize", boundary: str | None = None
     from hexsos_plugins import repair
 
     gmsh = gmsh_api()
-    hx = model_cells()
+    hx, reversed_tags = _right_handed_model(model_cells(), fix_orientation)
     points, tags = hx.points, hx.node_tags
     cells = [(t, c) for t, c in hx.cells if t != "hexahedron"]
     pinned = hx.skipped_nodes.copy()
@@ -652,7 +658,33 @@ def repair_model(*, repair_method: str = "optimize", boundary: str | None = None
     res.extra["model_check"] = after
     res.extra["gmsh"] = hx
     res.extra["moved_node_tags"] = tags[moved]
+    res.extra["reversed_element_tags"] = reversed_tags
     return res
+
+
+def _right_handed_model(hx, fix):
+    """``hx`` (the model's :class:`GmshCells`) with the elements written in the mirrored node order reversed in
+    the model when ``fix`` (re-read), else an error naming them; and the reversed elements' tags."""
+    from hexsos_plugins.io.handedness import right_handed
+    from hexsos_plugins.io.mesh import Mesh
+
+    def mirrored(cells, fix):
+        return right_handed(Mesh.from_cells(cells.points, cells.cells), fix, folded=True,
+                            name=f"the Gmsh model '{cells.model}'",
+                            hint="Set 'Fix orientation' in the hexsos panel's parameters to 1 (repair_model("
+                                 "fix_orientation=True)) to reverse them, then repair")[2]
+
+    flip = mirrored(hx, fix)
+    if not flip.any():
+        return hx, np.zeros(0, dtype=np.uint64)
+    tags = hx.element_tags[flip]
+    gmsh_api().model.mesh.reverseElements(tags.tolist())
+    hx = model_cells()
+    try:
+        mirrored(hx, False)
+    except HexsosError as e:  # Gmsh reversed them otherwise than their mirror image: say so, change nothing more
+        raise GmshModelError(f"Gmsh's reverseElements left the model's elements mirrored: {e}") from None
+    return hx, tags
 
 
 #: The name of the view :func:`safe_step_model` posts (each element's proven safe fraction).

@@ -17,7 +17,7 @@ The panel (names as stored in ONELAB; Gmsh hides the leading digits, which fix t
     hexsos
       Parameters   Method (auto | sos), Relaxation (quad2 | paper), Repair method (optimize | paper), Repair
                    boundary (slide | fixed | free), Target min scaled J (auto | number), Pin boundary, Repair
-                   iterations; the paper's method's own last: Rho, Margin (auto | number)
+                   iterations, Fix orientation; the paper's method's own last: Rho, Margin (auto | number)
       [Check]  [Repair]
       Results      Elements checked, Invalid, Invalid inside only, Undecided, Minimum det J, Not checked,
                    Message (with the counts per element type), Minimum scaled J, Others not valid (3-D
@@ -47,6 +47,7 @@ __all__ = [
     "P_MARGIN",
     "P_PIN",
     "P_MAX_ITER",
+    "P_FIX",
     "P_REPAIR_METHOD",
     "P_BOUNDARY",
     "P_MIN_SJ",
@@ -86,9 +87,10 @@ P_BOUNDARY = f"{_ROOT}/0Parameters/3Repair boundary"
 P_MIN_SJ = f"{_ROOT}/0Parameters/4Target min scaled J"
 P_PIN = f"{_ROOT}/0Parameters/5Pin boundary"
 P_MAX_ITER = f"{_ROOT}/0Parameters/6Repair iterations"
+P_FIX = f"{_ROOT}/0Parameters/7Fix orientation"
 # the paper's method only (and the optimizer's fallback to it): after the parameters every repair uses
-P_RHO = f"{_ROOT}/0Parameters/7Rho (paper's)"
-P_MARGIN = f"{_ROOT}/0Parameters/8Margin (paper's)"
+P_RHO = f"{_ROOT}/0Parameters/8Rho (paper's)"
+P_MARGIN = f"{_ROOT}/0Parameters/9Margin (paper's)"
 P_CHECK = f"{_ROOT}/1Check"
 P_REPAIR = f"{_ROOT}/2Repair"
 R_HEXES = f"{_ROOT}/3Results/0Elements checked"
@@ -106,7 +108,7 @@ _RESULTS = (R_HEXES, R_INVALID, R_INSIDE_ONLY, R_UNDECIDED, R_MIN_DET, R_SKIPPED
 
 
 def _parameters(method="auto", relaxation="quad2", rho=200.0, margin="auto", pin=0, max_iter=100,
-                repair_method="optimize", boundary="slide", min_sj="auto"):
+                repair_method="optimize", boundary="slide", min_sj="auto", fix=0):
     def result(name, label_help):
         return {"type": "number", "name": name, "values": [0], "readOnly": True, "help": label_help,
                 "attributes": {"Highlight": "Ivory"}}
@@ -129,6 +131,10 @@ def _parameters(method="auto", relaxation="quad2", rho=200.0, margin="auto", pin
         {"type": "number", "name": P_MAX_ITER, "values": [max_iter], "min": 1, "max": 10000, "step": 10,
          "help": "outer iterations of the repair (optimize: per stage, at most 60 untangling steps and 80 quality "
                  "rounds below 100; paper: Algorithm 2's)"},
+        {"type": "number", "name": P_FIX, "values": [fix], "choices": [0, 1],
+         "help": "reverse the elements written in the mirrored node order before the repair (those whose faces meet "
+                 "their neighbours' the wrong way round fold over them, whatever their nodes' places; off: the "
+                 "repair names them and stops)"},
         {"type": "number", "name": P_RHO, "values": [rho], "min": 0.0, "max": 1e4, "step": 10.0,
          "help": "the paper's method (and the optimizer's fallback to it): weight of the averaging step "
                  "(Algorithm 2)"},
@@ -223,7 +229,7 @@ def read_parameters() -> dict:
             raise InvalidInputError(f"Repair target min scaled Jacobian: expected a number in (0, 1), found {sj_s!r}")
     return {"method": method, "relaxation": relaxation, "rho": rho, "margin": margin,
             "pin_boundary": bool(_number(P_PIN, 0.0)), "max_iter": int(max_iter), "repair_method": repair_method,
-            "boundary": boundary, "min_sj": min_sj}
+            "boundary": boundary, "min_sj": min_sj, "fix_orientation": bool(_number(P_FIX, 0.0))}
 
 
 def _highlight(name, colour):
@@ -304,7 +310,8 @@ def run_repair(**kwargs):
     status = _RepairStatus() if gui_available() else None
     res = repair_model(repair_method=p["repair_method"], boundary=boundary, min_sj=p["min_sj"], rho=p["rho"],
                        margin=p["margin"], max_iter=max_iter, method=p["method"], relaxation=p["relaxation"],
-                       progress=status and status.progress, callback=status and status.step)
+                       progress=status and status.progress, callback=status and status.step,
+                       fix_orientation=p["fix_orientation"])
     after = res.extra["model_check"]
     c = after.counts()
     s = res.stats
@@ -315,6 +322,8 @@ def run_repair(**kwargs):
            + f"; min scaled Jacobian {s.get('min_sj_before', float('nan')):.3f} -> "
            f"{s.get('min_sj_after', float('nan')):.3f}; {len(res.extra['moved_node_tags'])} nodes moved "
            f"(max {s.get('max_displacement', float('nan')):.3g})")
+    if len(res.extra["reversed_element_tags"]):
+        msg += f"; {len(res.extra['reversed_element_tags'])} elements reversed first (mirrored node order)"
     if "edge_ratio_after" in s:
         msg += (f"; shortest / longest edge of a hex {s['edge_ratio_before']:.3f} -> {s['edge_ratio_after']:.3f}")
     if res.message:

@@ -23,6 +23,7 @@ __all__ = [
     "random_hexes",
     "hexes_to_mesh",
     "structured_grid",
+    "folded_column",
     "gmsh_mesh",
     "demo_mesh",
 ]
@@ -92,6 +93,18 @@ def structured_grid(nx: int, ny: int | None = None, nz: int | None = None, *, si
     i, j, k = i.ravel(), j.ravel(), k.ravel()
     H = np.stack([idx[i + a, j + b, k + c] for a, b, c in CORNERS], axis=1)
     return P, H.astype(np.int64)
+
+
+def folded_column():
+    """Three unit hexes stacked along z, the middle one written in the mirrored node order (nodes 1 <-> 3, 5 <-> 7)
+    and its top face pushed below its bottom (z 2 -> 0.5): points (16, 3), hexes (3, 8). Every hex is valid by its
+    own node order, and the middle one lies inside the lowest: a mesh folded over itself, which no check of each
+    cell on its own sees (:meth:`hexsos_plugins.io.mesh.Mesh.folded_cells` names hex 1)."""
+    xy = np.array([[0, 0], [1, 0], [1, 1], [0, 1]], dtype=float)
+    P = np.concatenate([np.column_stack([xy, np.full(4, z)]) for z in (0.0, 1.0, 0.5, 3.0)])
+    H = np.array([[0, 1, 2, 3, 4, 5, 6, 7], [4, 5, 6, 7, 8, 9, 10, 11], [8, 9, 10, 11, 12, 13, 14, 15]])
+    H[1] = H[1][[0, 3, 2, 1, 4, 7, 6, 5]]
+    return P, H
 
 
 def cubed_ball(n: int = 2):

@@ -396,7 +396,7 @@ def test_panel_parameters_reach_the_kernel(session):
     gmsh.onelab.setNumber(panel.P_MAX_ITER, [7])
     assert panel.read_parameters() == {"method": "sos", "relaxation": "paper", "rho": 50.0, "margin": 2e-3,
                                        "pin_boundary": True, "max_iter": 7, "repair_method": "optimize",
-                                       "boundary": "slide", "min_sj": None}
+                                       "boundary": "slide", "min_sj": None, "fix_orientation": False}
     gmsh.onelab.setString(panel.P_REPAIR_METHOD, ["paper"])
     gmsh.onelab.setString(panel.P_BOUNDARY, ["free"])
     gmsh.onelab.setString(panel.P_MIN_SJ, ["0.3"])
@@ -528,6 +528,72 @@ def test_panel_repair_names_its_stage_in_the_status_bar(session, monkeypatch):
     assert any(re.fullmatch(rf"hexsos: repairing, {n} of {n} cells repaired; ({words})[a-z ,]*, \d+ s", m)
                for m in during), during
     assert all(i >= 2 for i in updates[:len(during)])  # each status line drawn by an update
+
+
+def _model_sides(a, b):
+    """The signed distances of Gmsh hexes a's and b's centroids (by element tag) from their shared face's plane,
+    read back from the model."""
+    def corners(tag):
+        return [int(n) for n in gmsh.model.mesh.getElement(tag)[1]]
+    na, nb = corners(a), corners(b)
+    X = {n: np.asarray(gmsh.model.mesh.getNode(n)[0]) for n in set(na) | set(nb)}
+    shared = [n for n in na if n in nb]
+    c = np.mean([X[n] for n in shared], axis=0)
+    nrm = np.linalg.svd(np.array([X[n] for n in shared]) - c)[2][2]
+    return (np.mean([X[n] for n in na], axis=0) - c) @ nrm, (np.mean([X[n] for n in nb], axis=0) - c) @ nrm
+
+
+def test_panel_repair_reverses_a_folded_element_only_when_asked(session):
+    """The middle hex of a column is written mirrored and lies inside the lowest: every element is valid by its own
+    node order. The panel's Repair names it and changes nothing; with Fix orientation it reverses that element in
+    the model (Gmsh's reverseElements), repairs, and each shared face ends with its two hexes on opposite sides."""
+    from hexsos_plugins.errors import LeftHandedMeshError
+    from hexsos_plugins.examples import folded_column
+
+    P, H = folded_column()
+    ntags, etags = gm.add_hex_mesh(P, H)
+    panel.define_parameters()
+    _press(panel.ACTION_CHECK)
+    assert _results()["invalid"] == 0  # a fold is no element's own fault
+    before = [gmsh.model.mesh.getElement(int(t))[1].tolist() for t in etags]
+    assert _press(panel.ACTION_REPAIR) is True
+    msg = _results()["message"]
+    assert isinstance(panel.last_error(), LeftHandedMeshError)
+    assert msg.startswith("error:") and "1 of the 3 hexahedron cells (cells 1)" in msg and "Fix orientation" in msg
+    assert [gmsh.model.mesh.getElement(int(t))[1].tolist() for t in etags] == before  # nothing changed
+    np.testing.assert_array_equal(gm.model_hexes().points, P)
+    gmsh.onelab.setNumber(panel.P_FIX, [1])
+    assert panel.read_parameters()["fix_orientation"] is True
+    _press(panel.ACTION_REPAIR)
+    res = panel.last_result()
+    assert res.success, res.message
+    assert res.extra["reversed_element_tags"].tolist() == [int(etags[1])]
+    r = _results()
+    assert r["invalid"] == 0 and "1 elements reversed first" in r["message"]
+    after = [gmsh.model.mesh.getElement(int(t))[1].tolist() for t in etags]
+    assert after[0] == before[0] and after[2] == before[2] and after[1] != before[1]
+    assert sorted(after[1]) == sorted(before[1])  # the same nodes, the other way round
+    for a, b in ((0, 1), (1, 2)):
+        s, t = _model_sides(int(etags[a]), int(etags[b]))
+        assert s * t < 0  # unfolded: each on its own side of the face it shares
+
+
+def test_repair_model_refuses_or_reverses_a_left_handed_model(session):
+    """Every hex written in the mirrored node order: negative everywhere, which no move of the nodes mends. Refused
+    by name, or with fix_orientation reversed in Gmsh, found valid as it stands and left in place."""
+    from hexsos_plugins.errors import LeftHandedMeshError
+    from hexsos_plugins.examples import structured_grid
+
+    P, H = structured_grid(2)
+    H = H[:, [0, 3, 2, 1, 4, 7, 6, 5]]
+    _, etags = gm.add_hex_mesh(P, H)
+    assert (gmsh_plugin.check_model(post_views=False).status == 0).all()
+    with pytest.raises(LeftHandedMeshError, match="all 8 hexahedron cells are negatively oriented.*Fix orientation"):
+        gmsh_plugin.repair_model()
+    res = gmsh_plugin.repair_model(fix_orientation=True)
+    assert res.success and sorted(res.extra["reversed_element_tags"].tolist()) == sorted(etags.tolist())
+    assert (res.extra["model_check"].status == 1).all()
+    np.testing.assert_allclose(gm.model_hexes().points, P, atol=1e-12)  # a perfect grid: nothing to move
 
 
 def test_repair_model_pins_or_protects_nodes_shared_with_tetrahedra(session):
@@ -985,6 +1051,6 @@ def test_panel_labels_fit_and_the_method_comes_before_the_papers_parameters(tmp_
     assert _labels_cut(shot) == []
     # ONELAB sorts by name: every repair's parameters, then the paper's own (rho, margin)
     order = sorted([panel.P_METHOD, panel.P_RELAXATION, panel.P_REPAIR_METHOD, panel.P_BOUNDARY, panel.P_MIN_SJ,
-                    panel.P_PIN, panel.P_MAX_ITER, panel.P_RHO, panel.P_MARGIN])
+                    panel.P_PIN, panel.P_MAX_ITER, panel.P_FIX, panel.P_RHO, panel.P_MARGIN])
     assert order[0] == panel.P_METHOD and order[2] == panel.P_REPAIR_METHOD and order[-2:] == [panel.P_RHO,
                                                                                               panel.P_MARGIN]

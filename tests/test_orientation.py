@@ -10,21 +10,11 @@ import pytest
 
 import hexsos_plugins as hs
 from hexsos_plugins.errors import LeftHandedMeshError
-from hexsos_plugins.examples import structured_grid
+from hexsos_plugins.examples import folded_column, structured_grid
 from hexsos_plugins.io.mesh import Mesh
 
 FLIP = [0, 3, 2, 1, 4, 7, 6, 5]  # a hex's node order mirrored
 KITTEN = os.path.join(os.path.dirname(__file__), "..", "..", "shared", "data", "hexalab", "kitten_with_bifur_3.mesh")
-
-
-def _column():
-    """Three unit hexes stacked along z, the middle one written mirrored and its top face pushed below its bottom
-    (z 2 -> 0.5): every hex is valid by its own node order, and the middle one lies inside the lowest."""
-    xy = np.array([[0, 0], [1, 0], [1, 1], [0, 1]], dtype=float)
-    P = np.concatenate([np.column_stack([xy, np.full(4, z)]) for z in (0.0, 1.0, 0.5, 3.0)])
-    H = np.array([[0, 1, 2, 3, 4, 5, 6, 7], [4, 5, 6, 7, 8, 9, 10, 11], [8, 9, 10, 11, 12, 13, 14, 15]])
-    H[1] = H[1][FLIP]
-    return P, H
 
 
 def _sides(P, H, a, b):
@@ -36,7 +26,7 @@ def _sides(P, H, a, b):
 
 
 def test_a_fold_valid_cell_by_cell_is_named_refused_and_once_flipped_untangled():
-    P, H = _column()
+    P, H = folded_column()
     assert (hs.check(P, H).status == 1).all()  # every hex valid by its own corners and coefficients
     a, b = _sides(P, H, 0, 1)
     assert a * b > 0  # ... and the middle one on the lowest's side of their face: they overlap
@@ -106,7 +96,7 @@ def test_hexsos_repair_names_the_fold_and_repairs_it_with_fix_orientation(tmp_pa
 
     from hexsos_plugins import cli
 
-    P, H = _column()
+    P, H = folded_column()
     src, out = tmp_path / "fold.vtu", tmp_path / "out.vtu"
     meshio.write(src, meshio.Mesh(P, [("hexahedron", H)]))
     assert cli.main(["repair", str(src), "-o", str(out), "--no-progress", "--no-fidelity"]) == 2

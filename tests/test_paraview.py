@@ -160,8 +160,8 @@ def test_check_filter_by_label_in_pvpython(tmp_path, mixed_vtu):
     assert sum(folds["point:hexsos_invalid_inside_only"]) == counts["invalid_inside_only"]
     assert res["label"] == "HexSOS Check" and res["category"] == "Mesh Quality"
     assert res["properties"] == ["Input", "Method", "Relaxation"]
-    assert res["repair_properties"] == ["Boundary", "FeatureAngle", "Input", "Margin", "MaxIterations", "Method",
-                                        "MinScaledJacobian", "PinBoundary", "PinNonHexPoints", "Relaxation",
+    assert res["repair_properties"] == ["Boundary", "FeatureAngle", "FixOrientation", "Input", "Margin",
+                                        "MaxIterations", "Method", "MinScaledJacobian", "PinBoundary", "PinNonHexPoints", "Relaxation",
                                         "RepairMethod", "Rho", "TimeLimit"]
     assert res["no_hex"]["cells"] == 0 and "no 3-D cells" in proc.stderr
     # ParaView's own numpy and VTK stay first on sys.path; the rest comes from HEXSOS_PYTHONPATH / the repo

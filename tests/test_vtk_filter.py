@@ -570,6 +570,42 @@ def test_repair_writes_voxels_as_hexahedra_beside_a_polyhedron():
     assert fingerprint(grid) == before and grid.GetCellType(0) == VOXEL
 
 
+def test_repair_flips_a_folded_cell_only_when_asked():
+    """The middle hex of a column is written mirrored and lies inside the lowest (every cell valid by its own node
+    order), beside a quad. Without FixOrientation the filter names it in a VTK error and outputs nothing; with it,
+    the cell is flipped in the output (marked in hexsos_flipped), repaired and certified, and every shared face has
+    its two hexes on opposite sides; the quad and the input are untouched."""
+    from hexsos_plugins.examples import folded_column
+
+    P, H = folded_column()
+    grid = make_grid(np.concatenate([P, [[5.0, 0, 0], [6, 0, 0], [6, 1, 0]]]),
+                     [(HEX, h) for h in H] + [(QUAD, [0, 16, 17, 18])])
+    before = fingerprint(grid)
+    f = HexSOSRepairFilter()
+    msgs = Messages(f)
+    assert f.GetFixOrientation() is False
+    f.SetInputDataObject(0, grid)
+    assert not f.Update()
+    assert len(msgs.errors) == 1 and "(cells 1)" in msgs.errors[0] and "Fix Orientation" in msgs.errors[0]
+    assert f.GetOutputDataObject(0).GetNumberOfCells() == 0
+    f.SetFixOrientation(1)
+    assert f.Update() and f.GetResult().success and len(msgs.errors) == 1
+    out = f.GetOutputDataObject(0)
+    conn = [[out.GetCell(c).GetPointId(k) for k in range(out.GetCell(c).GetNumberOfPoints())] for c in range(4)]
+    assert conn[0] == H[0].tolist() and conn[2] == H[2].tolist() and conn[3] == [0, 16, 17, 18]
+    assert conn[1] == H[1][[0, 3, 2, 1, 4, 7, 6, 5]].tolist()  # the mirror image: nodes 1 <-> 3, 5 <-> 7
+    assert cell_array(out, "hexsos_flipped").tolist() == [0, 1, 0, 0]
+    new = vtk_to_numpy(out.GetPoints().GetData())
+    Hout = np.array(conn[:3])
+    assert (hs.check(new, Hout).status == 1).all()
+    for a, b in ((0, 1), (1, 2)):
+        shared = [v for v in Hout[a] if v in Hout[b]]
+        c = new[shared].mean(axis=0)
+        n = np.linalg.svd(new[shared] - c)[2][2]
+        assert ((new[Hout[a]].mean(axis=0) - c) @ n) * ((new[Hout[b]].mean(axis=0) - c) @ n) < 0  # unfolded
+    assert fingerprint(grid) == before
+
+
 def test_single_type_grids_with_implicit_arrays():
     """VTK >= 9.4 may store a single-type grid with implicit offsets and a constant types array."""
     from vtkmodules.vtkCommonDataModel import vtkCellArray

@@ -378,15 +378,17 @@ def _add_other_cells(out, checked, cell_ids):
                 arr.SetTuple1(i, v)
 
 
-def _voxels_as_hexahedra(out, inp, types, voxel_cells, voxel_hexes):
-    """Give ``out`` (a shallow copy of ``inp``) new cells: the voxels as hexahedra (type 12, VTK node order),
-    every other cell as it was. New arrays throughout: the input's cells and types stay untouched."""
+def _rewrite_cells(out, inp, types, rows):
+    """Give ``out`` (a shallow copy of ``inp``) new cells: for each ``(cell_ids, conn)`` of ``rows`` those cells'
+    points in that (VTK) order, voxels among them as hexahedra (type 12); every other cell as it was. New arrays
+    throughout: the input's cells and types stay untouched."""
     offsets, conn = _cells(inp)
     offsets = np.array(offsets, dtype=np.int64)
     conn = np.array(conn, dtype=np.int64)
-    conn[offsets[voxel_cells][:, None] + np.arange(8)] = voxel_hexes
     new_types = np.array(types, dtype=np.uint8)
-    new_types[voxel_cells] = VTK_HEXAHEDRON
+    for cell_ids, new in rows:
+        conn[offsets[cell_ids][:, None] + np.arange(new.shape[1])] = new
+        new_types[cell_ids[new_types[cell_ids] == VTK_VOXEL]] = VTK_HEXAHEDRON
     cells = vtkCellArray()
     cells.SetData(numpy_to_vtkIdTypeArray(offsets, deep=1), numpy_to_vtkIdTypeArray(conn, deep=1))
     cell_types = numpy_to_vtk(new_types, deep=1, array_type=VTK_UNSIGNED_CHAR)
@@ -630,7 +632,11 @@ class HexSOSRepairFilter(_HexSOSBase):
     ``SetMargin`` (relative margin > 0; None: the kernel's default 1e-3); ``SetMethod`` and ``SetRelaxation``
     for the kernel. Field data also holds the quality before and after: ``hexsos_min_sj_before`` /
     ``_after``, ``hexsos_p1_sj_after``, ``hexsos_mean_sj_after`` (Verdict's corner scaled Jacobian),
-    ``hexsos_edge_ratio_after`` (the least shortest / longest edge of a hex), and with a sliding boundary ``hexsos_boundary_max_distance`` (the farthest boundary point from the input's surface).
+    ``hexsos_edge_ratio_after`` (the least shortest / longest edge of a hex), and with a sliding boundary
+    ``hexsos_boundary_max_distance`` (the farthest boundary point from the input's surface). Cells written in
+    the mirrored node order (a whole type, or cells whose faces meet their neighbours' the wrong way round: they
+    fold over them) are an error naming them, unless ``SetFixOrientation(1)``: then they are flipped first, in
+    the output too, and marked 1 in the cell array ``hexsos_flipped``.
     A repair that does not prove every cell valid still outputs the best mesh found, with a VTK warning.
     Errors are reported as by :class:`HexSOSCheckFilter`. ``AbortExecuteOn()`` stops between iterations.
     """
@@ -647,6 +653,7 @@ class HexSOSRepairFilter(_HexSOSBase):
         self._min_sj = 0.0
         self._feature_angle = 45.0
         self._time_limit = 0.0
+        self._fix_orientation = False
         self._t0 = time.perf_counter()  # the start of the last repair (the progress text's seconds)
 
     @smproperty.stringvector(name="RepairMethod", label="Repair Method", default_values="optimize",
@@ -762,6 +769,32 @@ class HexSOSRepairFilter(_HexSOSBase):
     def GetPinNonHexPoints(self) -> bool:
         return self._pin_non_hex
 
+    @smproperty.intvector(name="FixOrientation", label="Fix Orientation", default_values=0, number_of_elements=1)
+    @smdomain.xml('<BooleanDomain name="bool"/>')
+    @_doc("Flip the cells written in the mirrored node order before the repair (a cell whose faces meet its "
+          "neighbours' the wrong way round folds over them, whatever its points' places); off: the repair names "
+          "them and stops. Flipped cells are marked in the cell array hexsos_flipped.")
+    def SetFixOrientation(self, value):
+        self._set("_fix_orientation", bool(value))
+
+    def GetFixOrientation(self) -> bool:
+        return self._fix_orientation
+
+    def _right_handed(self, P, blocks):
+        """``blocks`` with the cells written in the mirrored node order flipped when FixOrientation is on (else
+        an error naming them), and the ids of the cells flipped."""
+        from hexsos_plugins.io.handedness import right_handed
+        from hexsos_plugins.io.mesh import Mesh
+
+        mesh, _, flip = right_handed(Mesh.from_cells(P, [(t, c) for t, c, _ in blocks]), self._fix_orientation,
+                                     folded=True, name="the input",
+                                     hint="Turn on the repair filter's Fix Orientation (SetFixOrientation(1)) to "
+                                          "flip them")
+        if not flip.any():
+            return blocks, np.zeros(0, dtype=np.int64)
+        ids = np.concatenate([ids for _, _, ids in blocks])
+        return [(t, c, i) for (t, c), (_, _, i) in zip(mesh.cells, blocks)], ids[flip]
+
     def _abort(self, entry, points):
         """The repair's callback: names the stage under way for ParaView's progress bar (the bar's fraction
         counts the cells repaired: full long before the quality stages end) and stops on the abort button."""
@@ -777,6 +810,7 @@ class HexSOSRepairFilter(_HexSOSBase):
         from hexsos_plugins.meshrepair import door_boundary
 
         P = _points(inp)
+        blocks, flipped = self._right_handed(P, blocks)
         hex_blocks = [(c, ids) for t, c, ids in blocks if t == "hexahedron"]
         from hexsos_plugins.meshrepair.curved import needs_curved
 
@@ -813,8 +847,13 @@ class HexSOSRepairFilter(_HexSOSBase):
         finally:
             self.SetProgressText(None)  # the next run's bar shows the filter's own name again
         out.ShallowCopy(inp)
-        if is_voxel.any():
-            _voxels_as_hexahedra(out, inp, types, cell_ids[is_voxel], H[is_voxel])
+        if is_voxel.any() or flipped.size:  # their new node orders: voxels as hexahedra, flipped cells mirrored
+            _rewrite_cells(out, inp, types, [(ids[m], c[m]) for _, c, ids in blocks
+                                             for m in [np.isin(ids, flipped) | (types[ids] == VTK_VOXEL)] if m.any()])
+        if flipped.size:
+            mark = np.zeros(len(types), dtype=np.int8)
+            mark[flipped] = 1
+            out.GetCellData().AddArray(_vtk_array("hexsos_flipped", mark))
         pts = vtkPoints()
         pts.SetDataTypeToDouble()
         pts.SetData(_vtk_array("Points", np.asarray(result.points, dtype=np.float64)))

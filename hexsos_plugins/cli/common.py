@@ -125,49 +125,12 @@ def announce_compilation(args) -> bool:
 
 def read_mesh(path, fix_orientation: bool, *, folded: bool = False):
     """Read ``path``; cells written in the mirrored node order are an error naming them, unless
-    ``fix_orientation``, which flips exactly those. Mirrored: every cell of a type negatively oriented (the file
-    mirrors that type's node order), or the cells that :meth:`~hexsos_plugins.io.mesh.Mesh.mirrored_cells` finds
-    by the faces they share and by blocks (a mirrored region beside a right-handed one, a block written
-    mirrored). Returns ``(mesh, orientation)`` with orientation ``"right-handed"``, ``"mixed"``, ``"left-handed
-    (TYPES)"`` or ``"mirrored (COUNTS)"``; the last two are flipped. ``folded``: also the cells written in the
-    other handedness than most of their part whatever their signs (:meth:`~hexsos_plugins.io.mesh.Mesh.folded_cells`:
-    the repair's, which refuses a mesh folded so; it reads every face, seconds on a million hexes); read so anyway
-    when some cell is negative at its centre."""
-    import numpy as np
-
-    from ..cells.elements import CELL_TYPES
-    from ..errors import LeftHandedMeshError
+    ``fix_orientation``, which flips exactly those (:func:`hexsos_plugins.io.handedness.right_handed`, with
+    ``folded`` as there: the repair reads every face for folds). Returns ``(mesh, orientation)`` with
+    orientation ``"right-handed"``, ``"mixed"``, ``"left-handed (TYPES)"`` or ``"mirrored (COUNTS)"``; the last
+    two are flipped."""
     from ..io import read
+    from ..io.handedness import right_handed
 
-    mesh = read(path)
-    det = mesh.centre_det()  # one pass for both
-    overall, per_type = mesh.orientation_and_types(det)
-    left = [t for t, o in per_type.items() if o == "left-handed"]
-    # a mesh with a cell negative at its centre is read for folds too (what it names is what a repair would flip)
-    mirrored = mesh.mirrored_cells(det, folded=folded or bool((det < 0).any()))
-    for t in left:
-        mirrored[mesh.cell_types == CELL_TYPES.index(t)] = False
-    if not left and not mirrored.any():
-        return mesh, overall
-    counts = mesh.counts_by_type()
-    some = {t: int(np.count_nonzero(mirrored[mesh.cell_types == CELL_TYPES.index(t)])) for t in counts}
-    some = {t: k for t, k in some.items() if k}
-    said = []
-    if left:
-        said.append(", ".join(f"all {counts[t]} {t} cells" for t in left) + " are negatively oriented (det J < 0 at "
-                    "their centres; the file uses the mirrored node order)")
-    if some:
-        rows = np.flatnonzero(mirrored)
-        shown = ", ".join(map(str, rows[:5])) + (", ..." if len(rows) > 5 else "")
-        said.append(" and ".join(f"{k} of the {counts[t]} {t} cells" for t, k in some.items())
-                    + f" (cells {shown}) are written in the mirrored node order: their faces meet their neighbours' "
-                    "the wrong way round (valid or not cell by cell, they fold over them), or their block is "
-                    "negative throughout)")
-    if not fix_orientation:
-        raise LeftHandedMeshError(f"{path} is {'partly mirrored' if some else 'left-handed'}: {'; '.join(said)}. "
-                                  "Pass --fix-orientation to flip them")
-    flipped = mesh.flipped(cell_types=left or None, cells=mirrored)
-    if not some:
-        return flipped, f"left-handed ({', '.join(left)})"
-    which = [f"all {t}" for t in left] + [f"{k} {t}" for t, k in some.items()]
-    return flipped, f"mirrored ({', '.join(which)} cells)"
+    mesh, orientation, _ = right_handed(read(path), fix_orientation, folded=folded, name=str(path))
+    return mesh, orientation

@@ -2,7 +2,8 @@
 
 Owns: the public entry points (:func:`read`, :func:`write`, :func:`supported_extensions`, :func:`read_meshio`),
 the mesh model (:mod:`.mesh`: :class:`~hexsos_plugins.io.mesh.Mesh` keeps everything of a file, checkable cells in
-VTK node order, orientation), the one format registry (:mod:`.formats`: names, extensions, aliases, which reader
+VTK node order, orientation), which cells a file writes mirrored and their flip (:mod:`.handedness`: one rule and
+one message for every door), the one format registry (:mod:`.formats`: names, extensions, aliases, which reader
 reads what), meshio's conventions (:mod:`.meshio_conventions`: its output captured, node-order corrections), the
 readers (:mod:`.readers`: one module per reader: meshio, VTK's and Gmsh's own readers, a numpy fast path for
 binary MSH, tolerant readers of published variants) and the writers (:mod:`.writers`: atomic writes, each
