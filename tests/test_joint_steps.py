@@ -183,13 +183,14 @@ def test_published_cat_2_joint_steps_lift_the_worst_cluster():
 
 def test_published_kitten_joint_steps_lift_its_plateau():
     """kitten_with_bifur_3 (published, 34,880 hexes), its 40 hexes folded over their neighbours flipped first: the
-    joint steps lift the minimum from the vertex steps' 0.54 to 0.67 (one run). As written, beside its worst hexes
+    joint steps lift the minimum from the vertex steps' 0.59 to 0.71 (one run; 0.54 to 0.67 when stage 2's rounds
+    were judged by their minimum). As written, beside its worst hexes
     sat the folded ones with a Bernstein coefficient of det J near 0 (5e-6 of their largest), where a step of the
     trust region's size went below 0 at second order and every step was refused (0.277, 0.05 above the start);
     the steps near such a coefficient are at most 0.3 sqrt(r) of the edge length (``NEAR_ZERO_STEP``) since, and
     went from about 0.24 past 0.44 there."""
     _, before, after = _joint_stage("kitten_with_bifur_3.mesh")
-    assert before < 0.6 and after > before + 0.05 and after > 0.6, (before, after)
+    assert before < 0.65 and after > before + 0.05 and after > 0.65, (before, after)
 
 
 def test_rows_that_cannot_bind_leave_the_program_as_it_was():

@@ -689,6 +689,52 @@ def test_improve_judges_the_pace_of_rounds_below_their_start(monkeypatch):
     assert out[3600.0]["rounds"] > 1 and out[3600.0]["min_sj"] > m0 + 0.05 and not out[3600.0].get("unrecovered")
 
 
+def test_low_share_is_the_scaled_jacobian_below_which_that_share_of_cells_lie():
+    """``low_share``: on 200 jittered hexes, 1% is the third lowest cell's corner scaled Jacobian (Verdict's, computed
+    apart), 0 the minimum, 0.5 the median's neighbourhood; fewer than 100 cells give their minimum."""
+    from hexsos_plugins.meshrepair.driver import cell_size
+
+    P, H = structured_grid(10, 10, 2)
+    P = P + np.random.default_rng(1).normal(scale=0.02, size=P.shape)
+    prob = op.Problem(P, [("hexahedron", H)], [cell_size(P, "hexahedron", H)], np.ones(len(P), bool))
+    sj = np.sort(hs.scaled_jacobian(P, H))
+    assert sj[0] < sj[1] < sj[2] < sj[3]  # distinct: the rank matters
+    assert op.low_share(prob, P) == sj[2] and op.low_share(prob, P, 0.0) == sj[0]
+    assert op.low_share(prob, P, 0.5) == sj[100]
+    small = op.Problem(P, [("hexahedron", H[:60])], [cell_size(P, "hexahedron", H[:60])], np.ones(len(P), bool))
+    assert op.low_share(small, P) == hs.scaled_jacobian(P, H[:60]).min()
+
+
+def test_improve_judges_rounds_below_their_start_by_their_low_share(monkeypatch):
+    """The rounds' trail holds the region's 1st percentile after each round (``low_share`` of the mesh the round
+    left), judged against the start's, not the minimum: on 300 jittered unit cubes with one squashed (minimum 0.64,
+    1st percentile 0.72), the values ``recovers_in_time`` is given are those of the rounds' meshes (seen by
+    ``on_step``) and not their minima."""
+    from hexsos_plugins.meshrepair.driver import cell_size
+
+    P, H = structured_grid(10, 10, 3, size=(10.0, 10.0, 3.0))  # unit cubes
+    P = P + np.random.default_rng(2).normal(scale=0.03, size=P.shape)
+    P[H[55, 6]] -= [0.0, 0.0, 0.6]  # one hex squashed (an interior vertex): its minimum well below the rest
+    free = np.ones(len(P), bool)
+    free[np.unique(hs.io.mesh.Mesh.from_arrays(P, H).boundary_faces())] = False
+    prob = op.Problem(P, [("hexahedron", H)], [cell_size(P, "hexahedron", H)], free)
+    start = (op.low_share(prob, P), prob.min_sj(P))
+    seen, asked = [], []
+    real = op.recovers_in_time
+
+    def spy(trail, m_start, *a, **k):
+        asked.append((list(trail), m_start))
+        return real(trail, m_start, *a, **k)
+
+    monkeypatch.setattr(op, "recovers_in_time", spy)
+    info = op.improve(prob, max_rounds=3, recover_seconds=3600.0,
+                      on_step=lambda stage, V: seen.append((op.low_share(prob, V), prob.min_sj(V))))
+    assert info["rounds"] == len(asked) == len(seen) >= 2
+    assert all(m_start == start[0] for _, m_start in asked) and start[0] > start[1] + 0.05
+    assert [v for _, v in asked[-1][0]] == [low for low, _ in seen]
+    assert [v for _, v in asked[-1][0]] != [m for _, m in seen]  # the low share, not the minimum
+
+
 def test_projection_holds_the_edge_floor():
     """project_valid moves a vertex as far as every cell stays valid; with ``ratio_floor`` also as far as no hex's
     shortest / longest edge falls below it: a target that collapses an edge of the unit cube is taken whole without,
