@@ -847,9 +847,13 @@ class HexSOSRepairFilter(_HexSOSBase):
         finally:
             self.SetProgressText(None)  # the next run's bar shows the filter's own name again
         out.ShallowCopy(inp)
-        if is_voxel.any() or flipped.size:  # their new node orders: voxels as hexahedra, flipped cells mirrored
-            _rewrite_cells(out, inp, types, [(ids[m], c[m]) for _, c, ids in blocks
-                                             for m in [np.isin(ids, flipped) | (types[ids] == VTK_VOXEL)] if m.any()])
+        rows = []  # the cells with new node orders: voxels as hexahedra, flipped cells mirrored
+        for _, c, ids in blocks:
+            m = np.isin(ids, flipped) | (types[ids] == VTK_VOXEL)
+            if m.any():
+                rows.append((ids[m], c[m]))
+        if rows:
+            _rewrite_cells(out, inp, types, rows)
         if flipped.size:
             mark = np.zeros(len(types), dtype=np.int8)
             mark[flipped] = 1
