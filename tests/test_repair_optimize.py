@@ -641,8 +641,8 @@ def test_rounds_below_their_start_for_too_long_give_up():
 
 
 def test_rounds_below_their_start_stop_when_their_pace_cannot_bring_them_back():
-    """``recovers_in_time``: the trails of stage 2's rounds measured on the published meshes (seconds, minimum after
-    each round). kitten_with_bifur_3's (0.182 -> 0.133 -> 0.136 -> 0.140 ... 0.114, below their start for 10 s and
+    """``recovers_in_time``: the trails of stage 2's rounds measured on the published meshes when the rounds were
+    judged by their minimum (seconds, minimum after each round; the rule reads any measure so). kitten_with_bifur_3's (0.182 -> 0.133 -> 0.136 -> 0.140 ... 0.114, below their start for 10 s and
     undone) stop at 3.2 s, the first round judged; warrior_graded's widened region (0.569 -> 0.521, back above at
     5.4 s) and dinopet_graded's first chunk (0.240 -> 0.193, back above at 3.1 s) go on to their end; a minimum
     still at its lowest after the grace stops; the 10 s still stop any chunk below its start."""
