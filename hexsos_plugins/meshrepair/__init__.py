@@ -6,8 +6,9 @@ steps (:mod:`.localopt`), the boundary model
 (:mod:`.boundary`: surface, features, sliding), the paper's Algorithms 1 and 2 (:mod:`.paper`), the one result
 type (:mod:`.result`), the repair of meshes far from unit size at a power-of-two scale (:mod:`.scale`), the options and the one rule for their defaults (:mod:`.options`), the boundary's distance
 to the input (:mod:`.fidelity`), the BLAS thread cap (:mod:`.blas`), and the repair of curved and hex-free
-meshes on det J's Bernstein coefficients (:mod:`.curved`, its compiled loops :mod:`.curvedkernels`, the
-untangling of their folded straight-sided skeleton first :mod:`.skeleton`), and the refusal of a mesh folded over
+meshes on det J's Bernstein coefficients (:mod:`.curved`, its compiled loops :mod:`.curvedkernels`, what it and the
+skeleton stand on :mod:`.curvedcells`: coefficients, curved boundary, the problem; the untangling of their folded
+straight-sided skeleton first :mod:`.skeleton`), and the refusal of a mesh folded over
 itself by its node order (:mod:`.orientation`).
 
 May import: the certify, kernel and cells wings, :class:`hexsos_plugins.io.mesh` helpers (mesh topology) and

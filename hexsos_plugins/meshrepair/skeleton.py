@@ -78,7 +78,7 @@ def straight_points(P, blocks) -> np.ndarray:
 
 def folded_cells(P, lin, scale) -> list:
     """Per linear block, the cells with a Bernstein coefficient of det J <= 0 (relative to ``scale``)."""
-    from .curved import kernel_coefficients
+    from .curvedcells import kernel_coefficients
 
     out = []
     for (name, conn), s in zip(lin, scale):
@@ -108,7 +108,7 @@ def untangle(V, lin, scale, core, pin, bnd, *, rings=2, deadline=None, outers=60
     lets the fold open in big steps), then follows ``schedule``: "aggressive" (a fifth of the most negative
     coefficient) or "garanzha" (Garanzha et al.'s rule: shrinks with the energy's relative decrease); once every cell of the energy is positive ``quality_iters`` iterations of the barrier
     give the corners some room before the high-order nodes come back."""
-    from .curved import cell_groups, node_cells
+    from .curvedcells import cell_groups, node_cells
 
     N = V.shape[0]
     cells_at = node_cells(lin, N)
@@ -132,7 +132,7 @@ def untangle(V, lin, scale, core, pin, bnd, *, rings=2, deadline=None, outers=60
 
 def _untangle_group(V, lin, scale, comp, pin, bnd, cells_at, rings, deadline, outers, iters, quality_iters, eps0,
                     schedule, debug):
-    from .curved import Problem, nodes_of, fast_coefficients
+    from .curvedcells import Problem, nodes_of, fast_coefficients
 
     N = V.shape[0]
     masks = [c.copy() for c in comp]
