@@ -137,8 +137,8 @@ PACE_SECONDS = 3.0
 #: after them lift its least cells. Measured on kitten_with_bifur_3 (flipped first): a region of 12,984 free
 #: vertices whose ten rounds (1.3-2.3 s each) took the minimum 0.266 -> 0.216 in the first and back above the start,
 #: 0.267, only in the tenth, at 15.7 s, while the 1st percentile rose 0.373 -> 0.380 in the first and on to 0.466
-#: and the region's mean 0.77 -> 0.86; judged by the minimum, the pace rule stopped them after two rounds (4.1 s;
-#: when a round took a little less, after three or ten) and they were undone: the repair ended at 0.662-0.683 in 18
+#: and the region's mean 0.77 -> 0.86; judged by the minimum, the pace rule stopped them after two rounds (at 4.1 s
+#: their pace would bring them back at 10.5 s, against 10) and they were undone: the repair ended at 0.662-0.683 in 18
 #: runs (means 0.839-0.840) and at 0.723 in one, mean 0.875; with the ten rounds it ends at 0.722-0.723, mean 0.874
 RECOVER_SHARE = 0.01
 
