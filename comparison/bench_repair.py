@@ -180,18 +180,18 @@ def _published_meshes(names=None):
     """(name, hexsos Mesh) of each published mesh (paths under ../shared/data, default :data:`PUBLISHED`), read in
     place; an absent one is skipped with a line on stderr."""
     from hexsos_plugins.io import read
+    from hexsos_plugins.io.handedness import right_handed
 
     for rel in names or PUBLISHED:
         path = os.path.join(SHARED, rel)
         if not os.path.exists(path):
             print(f"({rel} skipped: {path} absent)", file=sys.stderr)
             continue
-        m = read(path)
-        mirrored = m.mirrored_cells()
-        if mirrored.any():  # as `hexsos repair --fix-orientation`: the repair refuses a mesh folded by its node order
-            print(f"({rel}: {int(mirrored.sum())} cells written in the other handedness than their neighbours "
+        # as `hexsos repair --fix-orientation`: the repair refuses a mesh folded by its node order
+        m, _, flipped = right_handed(read(path), True, folded=True)
+        if flipped.any():
+            print(f"({rel}: {int(flipped.sum())} cells written in the other handedness than their neighbours "
                   "flipped first, as `hexsos repair --fix-orientation` does)", file=sys.stderr)
-            m = m.flipped(cells=mirrored)
         yield os.path.splitext(os.path.basename(rel))[0], m
 
 

@@ -18,7 +18,7 @@ from ..errors import LeftHandedMeshError
 __all__ = ["right_handed"]
 
 
-def right_handed(mesh, fix: bool, *, folded: bool = False, det=None, name: str | None = None,
+def right_handed(mesh, fix: bool, *, folded: bool = False, name: str | None = None,
                  hint: str = "Pass --fix-orientation to flip them"):
     """The cells of ``mesh`` (a :class:`~hexsos_plugins.io.mesh.Mesh`) written in the mirrored node order: an error
     naming them, unless ``fix``, which flips exactly those.
@@ -32,8 +32,6 @@ def right_handed(mesh, fix: bool, *, folded: bool = False, det=None, name: str |
 
     Parameters
     ----------
-    det : array (n_cells,), optional
-        :meth:`~hexsos_plugins.io.mesh.Mesh.centre_det`'s values, when the caller has them.
     name : str, optional
         What the message calls the mesh (default: its path, else "the mesh").
     hint : str
@@ -51,11 +49,11 @@ def right_handed(mesh, fix: bool, *, folded: bool = False, det=None, name: str |
     LeftHandedMeshError
         Some cells are mirrored and ``fix`` is False.
     """
-    det = mesh.centre_det() if det is None else det  # one pass for both rules
+    det = mesh.centre_det()  # one pass for both rules
     overall, per_type = mesh.orientation_and_types(det)
     left = [t for t, o in per_type.items() if o == "left-handed"]
     # a mesh with a cell negative at its centre is read for folds too (what it names is what a repair would flip)
-    mirrored = mesh.mirrored_cells(det, folded=folded or bool((np.asarray(det) < 0).any()))
+    mirrored = mesh.mirrored_cells(det, folded=folded or bool((det < 0).any()))
     types = mesh.cell_types
     for t in left:
         mirrored[types == CELL_TYPES.index(t)] = False
