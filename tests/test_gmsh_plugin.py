@@ -531,16 +531,13 @@ def test_panel_repair_names_its_stage_in_the_status_bar(session, monkeypatch):
 
 
 def _model_sides(a, b):
-    """The signed distances of Gmsh hexes a's and b's centroids (by element tag) from their shared face's plane,
-    read back from the model."""
-    def corners(tag):
-        return [int(n) for n in gmsh.model.mesh.getElement(tag)[1]]
-    na, nb = corners(a), corners(b)
-    X = {n: np.asarray(gmsh.model.mesh.getNode(n)[0]) for n in set(na) | set(nb)}
-    shared = [n for n in na if n in nb]
-    c = np.mean([X[n] for n in shared], axis=0)
-    nrm = np.linalg.svd(np.array([X[n] for n in shared]) - c)[2][2]
-    return (np.mean([X[n] for n in na], axis=0) - c) @ nrm, (np.mean([X[n] for n in nb], axis=0) - c) @ nrm
+    """``face_sides`` of Gmsh hexes a and b (by element tag), read back from the model."""
+    from folds import face_sides
+
+    H = np.array([gmsh.model.mesh.getElement(tag)[1] for tag in (a, b)], dtype=np.int64)
+    X = {int(n): gmsh.model.mesh.getNode(int(n))[0] for n in np.unique(H)}
+    nodes = sorted(X)
+    return face_sides(np.array([X[n] for n in nodes]), np.searchsorted(nodes, H), 0, 1)
 
 
 def test_panel_repair_reverses_a_folded_element_only_when_asked(session):

@@ -13,22 +13,16 @@ from hexsos_plugins.errors import LeftHandedMeshError
 from hexsos_plugins.examples import folded_column, structured_grid
 from hexsos_plugins.io.mesh import Mesh
 
+from folds import face_sides
+
 FLIP = [0, 3, 2, 1, 4, 7, 6, 5]  # a hex's node order mirrored
 KITTEN = os.path.join(os.path.dirname(__file__), "..", "..", "shared", "data", "hexalab", "kitten_with_bifur_3.mesh")
-
-
-def _sides(P, H, a, b):
-    """The signed distances of hexes a's and b's centroids from the plane of the face they share."""
-    shared = [v for v in H[a] if v in H[b]]
-    c = P[shared].mean(axis=0)
-    n = np.linalg.svd(P[shared] - c)[2][2]
-    return float((P[H[a]].mean(axis=0) - c) @ n), float((P[H[b]].mean(axis=0) - c) @ n)
 
 
 def test_a_fold_valid_cell_by_cell_is_named_refused_and_once_flipped_untangled():
     P, H = folded_column()
     assert (hs.check(P, H).status == 1).all()  # every hex valid by its own corners and coefficients
-    a, b = _sides(P, H, 0, 1)
+    a, b = face_sides(P, H, 0, 1)
     assert a * b > 0  # ... and the middle one on the lowest's side of their face: they overlap
     m = Mesh.from_arrays(P, H)
     assert np.flatnonzero(m.folded_cells()).tolist() == [1]
@@ -44,7 +38,7 @@ def test_a_fold_valid_cell_by_cell_is_named_refused_and_once_flipped_untangled()
     r = hs.repair(f.points, f.hexes, boundary="free", jobs=0)
     assert r.success and (hs.check(r.points, f.hexes).status == 1).all()
     for x, y in ((0, 1), (1, 2)):
-        s, t = _sides(r.points, f.hexes, x, y)
+        s, t = face_sides(r.points, f.hexes, x, y)
         assert s * t < 0  # each on its own side of the faces it shares: unfolded
 
 

@@ -575,6 +575,7 @@ def test_repair_flips_a_folded_cell_only_when_asked():
     order), beside a quad. Without FixOrientation the filter names it in a VTK error and outputs nothing; with it,
     the cell is flipped in the output (marked in hexsos_flipped), repaired and certified, and every shared face has
     its two hexes on opposite sides; the quad and the input are untouched."""
+    from folds import face_sides
     from hexsos_plugins.examples import folded_column
 
     P, H = folded_column()
@@ -599,10 +600,8 @@ def test_repair_flips_a_folded_cell_only_when_asked():
     Hout = np.array(conn[:3])
     assert (hs.check(new, Hout).status == 1).all()
     for a, b in ((0, 1), (1, 2)):
-        shared = [v for v in Hout[a] if v in Hout[b]]
-        c = new[shared].mean(axis=0)
-        n = np.linalg.svd(new[shared] - c)[2][2]
-        assert ((new[Hout[a]].mean(axis=0) - c) @ n) * ((new[Hout[b]].mean(axis=0) - c) @ n) < 0  # unfolded
+        s, t = face_sides(new, Hout, a, b)
+        assert s * t < 0  # unfolded
     assert fingerprint(grid) == before
 
 
