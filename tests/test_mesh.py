@@ -506,3 +506,33 @@ def test_mirrored_cells_are_found_by_the_faces_they_share_not_by_their_sign():
     assert HexMesh.from_cells(tp, [("tetra", bad)]).mirrored_cells().tolist() == [False, True]
     with pytest.raises(InvalidInputError, match="bool array of shape"):
         m.flipped(cells=np.ones(3, dtype=bool))
+
+
+def test_boundary_faces_of_a_jumbled_mixed_mesh_match_a_count_of_every_face():
+    """Mesh.boundary (faces of exactly one cell, from the faces' node tuples sorted and grouped) against a plain count
+    of every face's node set: tetrahedra (triangles) and hexahedra (quads) in random order, some cells repeated
+    (their faces then shared), point numbers spread over a million (the grouping packs two numbers in one)."""
+    from collections import Counter
+
+    from hexsos_plugins.cells.elements import ELEMENTS
+    from hexsos_plugins.examples import structured_grid
+
+    rng = np.random.default_rng(3)
+    P, H = structured_grid(3)
+    H = H[rng.permutation(len(H))]
+    H = np.concatenate([H, H[:4]])  # four hexes twice: none of their faces is on the boundary any more
+    T = np.array([[0, 1, 4, 16], [1, 5, 4, 17], [0, 1, 4, 16]])  # the first tet twice
+    spread = np.sort(rng.choice(10**6, size=len(P), replace=False))
+    Q = np.zeros((spread[-1] + 1, 3))
+    Q[spread] = P
+    cells = [("hexahedron", spread[H]), ("tetra", spread[T])]
+    got = mesh_module.Mesh.from_cells(Q, cells).boundary()
+    for t, conn in cells:
+        k = 4 if t == "hexahedron" else 3
+        count = Counter(frozenset(c[list(f)]) for c in conn for f in ELEMENTS[t].faces if len(f) == k)
+        other = Counter()
+        for t2, conn2 in cells:
+            if t2 != t:
+                other.update(frozenset(c[list(f)]) for c in conn2 for f in ELEMENTS[t2].faces if len(f) == k)
+        want = sorted(sorted(s) for s, n in (count + other).items() if n == 1)
+        assert sorted(sorted(f) for f in got["quad" if k == 4 else "triangle"].tolist()) == want

@@ -253,9 +253,23 @@ def hexes_to_mesh(X):
 def _runs(key):
     """Rows of ``key`` (F, k), sorted node tuples, grouped by equal tuples: (order, starts, lengths), the rows in
     sorted order, where each run of equal rows starts in it and how long it is."""
-    order = np.lexsort(key.T[::-1])  # sort the face node tuples; equal faces become neighbours
-    sk = key[order]
-    starts = np.flatnonzero(np.concatenate([[True], (sk[1:] != sk[:-1]).any(axis=1)]))
+    if len(key) == 0:
+        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
+    n = int(key.max()) + 1
+    if key.shape[1] in (3, 4) and key.min() >= 0 and n <= 3_000_000_000:
+        # two packed columns: (a, b) and (c, d) each one int64 (n^2 < 2^63), sorted and compared as pairs,
+        # a third of the time of sorting the four columns (a million hexes)
+        key = np.ascontiguousarray(key, dtype=np.int64)
+        cols = [key[:, 0] * n + key[:, 1], key[:, 2] * n + key[:, 3] if key.shape[1] == 4 else key[:, 2]]
+    else:
+        cols = list(key.T)
+    order = np.lexsort(cols[::-1])  # sort the face node tuples; equal faces become neighbours
+    change = np.zeros(len(key), dtype=bool)
+    change[0] = True
+    for c in cols:
+        sc = c[order]
+        change[1:] |= sc[1:] != sc[:-1]
+    starts = np.flatnonzero(change)
     return order, starts, np.diff(np.append(starts, len(key)))
 
 
@@ -807,13 +821,18 @@ class Mesh:
         start = 0
         for _, t, conn in self._blocks:
             ids = np.arange(start, start + len(conn), dtype=np.int64)
-            for f in ELEMENTS[t].faces:
-                faces = conn[:, list(f)]
-                if near is None:
-                    parts[len(f)].append((faces, ids))
-                else:
+            for k in (3, 4):
+                fs = [f for f in ELEMENTS[t].faces if len(f) == k]
+                if not fs:
+                    continue
+                # one gather for the faces of a size, face by face as before (the faces of face 0, then 1, ...)
+                faces = np.take(conn, np.asarray(fs).ravel(), axis=1).reshape(len(conn), len(fs), k)
+                faces = faces.transpose(1, 0, 2).reshape(-1, k)
+                owner = np.tile(ids, len(fs))
+                if near is not None:
                     keep = near[faces].all(axis=1)
-                    parts[len(f)].append((faces[keep], ids[keep]))
+                    faces, owner = faces[keep], owner[keep]
+                parts[k].append((faces, owner))
             start += len(conn)
         return {k: (np.concatenate([p[0] for p in ps]), np.concatenate([p[1] for p in ps])) if ps else
                 (np.zeros((0, k), dtype=np.int64), np.zeros(0, dtype=np.int64)) for k, ps in parts.items()}
