@@ -564,18 +564,28 @@ def check_model(*, method: str = "auto", relaxation: str = "quad2", post_views: 
     hexsos_plugins.CheckResult
         Arrays in the order of ``result.extra["gmsh"].element_tags`` (a :class:`GmshCells`, which also holds
         the node tags, the dense arrays and the element types not checked); the posted view tags are in
-        ``result.extra["gmsh_views"]``; ``result.by_type()`` the counts per type.
+        ``result.extra["gmsh_views"]``; ``result.by_type()`` the counts per type. Each element is judged as
+        written; those written in the mirrored node order (:func:`hexsos_plugins.io.handedness.mirrored_cells`,
+        every shared face read: a type all negatively oriented, or elements whose faces meet their neighbours'
+        the wrong way round, which fold over them whatever their own verdicts) are named beside the verdicts:
+        their tags in ``result.extra["mirrored_element_tags"]``, the sentence in ``result.extra["mirrored"]``
+        ("" for none).
 
     Raises
     ------
     NoCellsError, GmshModelError, InvalidInputError (bad method / relaxation)
     """
     from hexsos_plugins.certify import check
+    from hexsos_plugins.io.handedness import mirrored_cells
+    from hexsos_plugins.io.mesh import Mesh
 
     hx = model_cells()
     result = check(hx.points, hx.cells, method=method, relaxation=relaxation, progress=progress,
                    jobs=0, quality=True)  # every core, as the command line; the scaled Jacobian too
     result.extra["gmsh"] = hx
+    mirrored, said = mirrored_cells(Mesh.from_cells(hx.points, hx.cells), folded=True)
+    result.extra["mirrored_element_tags"] = hx.element_tags[mirrored]
+    result.extra["mirrored"] = said
     result.extra["gmsh_views"] = _post(result) if post_views else {}
     return result
 

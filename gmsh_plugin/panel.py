@@ -259,7 +259,8 @@ def _show_result(result, message: str, *, min_sj=None) -> None:
     gmsh.onelab.setNumber(R_MIN_DET, [float(np.min(result.min_det))])
     gmsh.onelab.setNumber(R_SKIPPED, [sum(hx.skipped.values()) if hx is not None else 0])
     gmsh.onelab.setString(R_MESSAGE, [message])
-    bad = c["invalid"] + c["undecided"] + int(other) > 0
+    mirrored = result.extra.get("mirrored_element_tags")
+    bad = c["invalid"] + c["undecided"] + int(other) + (0 if mirrored is None else len(mirrored)) > 0
     for name in (R_INVALID, R_INSIDE_ONLY, R_UNDECIDED, R_MIN_DET, R_OTHER):
         _highlight(name, "LightPink" if bad else "PaleGreen")
 
@@ -277,8 +278,19 @@ def run_check(**kwargs):
     p.update(kwargs)
     result = check_model(method=p["method"], relaxation=p["relaxation"])
     _show_result(result, f"checked {_by_type(result)} in {result.seconds:.3g} s"
-                 + _not_checked(result.extra.get("gmsh")))
+                 + _not_checked(result.extra.get("gmsh")) + _mirrored(result))
     return result
+
+
+def _mirrored(result) -> str:
+    """The check's word on elements written in the mirrored node order, and how the panel reverses them."""
+    tags = result.extra.get("mirrored_element_tags")
+    if tags is None or not len(tags):
+        return ""
+    shown = ", ".join(map(str, tags[:5])) + (", ..." if len(tags) > 5 else "")
+    return (f"; {len(tags)} element{'s' * (len(tags) != 1)} (tags {shown}) written in the mirrored node order: "
+            "they fold over their neighbours whatever their own verdicts (Repair with 'Fix orientation' = 1 "
+            "reverses them)")
 
 
 def _by_type(result) -> str:

@@ -551,7 +551,12 @@ def test_panel_repair_reverses_a_folded_element_only_when_asked(session):
     ntags, etags = gm.add_hex_mesh(P, H)
     panel.define_parameters()
     _press(panel.ACTION_CHECK)
-    assert _results()["invalid"] == 0  # a fold is no element's own fault
+    r = _results()
+    assert r["invalid"] == 0  # a fold is no element's own fault ...
+    # ... but the check names it beside the verdicts, and the results turn pink
+    assert panel.last_result().extra["mirrored_element_tags"].tolist() == [int(etags[1])]
+    assert f"1 element (tags {int(etags[1])}) written in the mirrored node order" in r["message"]
+    assert "'Fix orientation' = 1" in r["message"]
     before = [gmsh.model.mesh.getElement(int(t))[1].tolist() for t in etags]
     assert _press(panel.ACTION_REPAIR) is True
     msg = _results()["message"]
@@ -582,9 +587,15 @@ def test_repair_model_refuses_or_reverses_a_left_handed_model(session):
     from hexsos_plugins.examples import structured_grid
 
     P, H = structured_grid(2)
+    _, etags = gm.add_hex_mesh(P, H)
+    right = gmsh_plugin.check_model(post_views=False)
+    assert right.extra["mirrored_element_tags"].size == 0 and right.extra["mirrored"] == ""
     H = H[:, [0, 3, 2, 1, 4, 7, 6, 5]]
     _, etags = gm.add_hex_mesh(P, H)
-    assert (gmsh_plugin.check_model(post_views=False).status == 0).all()
+    left = gmsh_plugin.check_model(post_views=False)
+    assert (left.status == 0).all()
+    assert sorted(left.extra["mirrored_element_tags"].tolist()) == sorted(etags.tolist())
+    assert "all 8 hexahedron cells are negatively oriented" in left.extra["mirrored"]
     with pytest.raises(LeftHandedMeshError, match="all 8 hexahedron cells are negatively oriented.*Fix orientation"):
         gmsh_plugin.repair_model()
     res = gmsh_plugin.repair_model(fix_orientation=True)

@@ -605,6 +605,47 @@ def test_repair_flips_a_folded_cell_only_when_asked():
     assert fingerprint(grid) == before
 
 
+def test_check_marks_a_folded_cell_beside_its_verdicts():
+    """The folded column (the middle hex written mirrored, lying inside the lowest) beside a quad: every hex valid by
+    its own node order, so the check's status says valid; hexsos_mirrored marks the middle one, a VTK warning and
+    the summary name it. The same column right-handed and unfolded (the middle hex stacked on the lowest): nothing
+    marked, no warning. The input is untouched either way."""
+    from hexsos_plugins.examples import folded_column
+
+    P, H = folded_column()
+    pts = np.concatenate([P, [[5.0, 0, 0], [6, 0, 0], [6, 1, 0]]])
+    grid = make_grid(pts, [(HEX, h) for h in H] + [(QUAD, [0, 16, 17, 18])])
+    before = fingerprint(grid)
+    f = HexSOSCheckFilter()
+    msgs = Messages(f)
+    f.SetInputDataObject(0, grid)
+    assert f.Update()
+    out = f.GetOutputDataObject(0)
+    assert cell_array(out, "hexsos_status").tolist() == [1, 1, 1, -2]
+    assert cell_array(out, "hexsos_mirrored").tolist() == [0, 1, 0, 0]
+    assert not msgs.errors and len(msgs.warnings) == 1
+    assert "(cells 1) are written in the mirrored node order" in msgs.warnings[0]
+    summary = out.GetFieldData().GetAbstractArray("hexsos_summary").GetValue(0)
+    assert "mirrored node order" in summary and "Fix Orientation" in summary
+    assert fingerprint(grid) == before
+
+    # unfolded: the middle hex right-handed, its top face pushed up so it sits on the lowest
+    Q = pts.copy()
+    mid = H[1][[0, 3, 2, 1, 4, 7, 6, 5]]
+    Q[mid[4:]] = Q[mid[:4]] + [0, 0, 1.0]
+    top = H[2]
+    Q[top[4:]] = Q[top[:4]] + [0, 0, 1.0]
+    ok = make_grid(Q, [(HEX, H[0]), (HEX, mid), (HEX, H[2]), (QUAD, [0, 16, 17, 18])])
+    g = HexSOSCheckFilter()
+    msgs = Messages(g)
+    g.SetInputDataObject(0, ok)
+    assert g.Update()
+    out = g.GetOutputDataObject(0)
+    assert cell_array(out, "hexsos_status").tolist() == [1, 1, 1, -2]
+    assert cell_array(out, "hexsos_mirrored").tolist() == [0, 0, 0, 0]
+    assert not msgs.warnings and not msgs.errors
+
+
 def test_single_type_grids_with_implicit_arrays():
     """VTK >= 9.4 may store a single-type grid with implicit offsets and a constant types array."""
     from vtkmodules.vtkCommonDataModel import vtkCellArray

@@ -549,8 +549,11 @@ class HexSOSCheckFilter(_HexSOSBase):
     Output port 0: the input grid (structure shallow-copied, every input array kept) with the kernel's cell
     arrays ``hexsos_min_det``, ``hexsos_lower_bound``, ``hexsos_argmin`` (3 components, u v w),
     ``hexsos_status`` (int8: 1 valid, 0 invalid, -1 undecided) and ``hexsos_corner_min_det``. Cells that are
-    not hexahedra get NaN in the float arrays and -2 (:data:`STATUS_NOT_A_HEX`) in ``hexsos_status``. Field
-    data ``hexsos_summary`` holds the kernel's summary text.
+    not hexahedra get NaN in the float arrays and -2 (:data:`STATUS_NOT_A_HEX`) in ``hexsos_status``. Each cell
+    is judged as written; ``hexsos_mirrored`` (int8) marks 1 the cells written in the mirrored node order (a
+    type all negative at its centres, or cells whose faces meet their neighbours' the wrong way round: they fold
+    over them, whatever their own status; :func:`hexsos_plugins.io.handedness.mirrored_cells`), and a VTK
+    warning names them. Field data ``hexsos_summary`` holds the kernel's summary text (and that warning's).
 
     Output port 1: a vtkPolyData with one vertex per invalid hex, at x(argmin) in world coordinates (where the
     hex folds), with point data ``hexsos_cell_id`` (cell index in the input grid), ``hexsos_hex_id`` (index
@@ -598,11 +601,30 @@ class HexSOSCheckFilter(_HexSOSBase):
                               jobs=0, quality=True)  # every core, as the command line; the scaled Jacobian too
         out.ShallowCopy(inp)
         _add_result_cell_arrays(out, result, cell_ids)
-        _add_summary(out, "hexsos_summary", result.summary())
+        mirrored, said = self._mirrored(P, cells)
+        out.GetCellData().AddArray(_vtk_array("hexsos_mirrored", _spread(mirrored.astype(np.int8), cell_ids,
+                                                                         out.GetNumberOfCells(), 0)))
+        summary = result.summary()
+        if said:
+            said = (f"{said}. The cells are judged as written above; HexSOS Repair with Fix Orientation flips them "
+                    "(hexsos_mirrored marks them)")
+            summary += "\n" + said
+        _add_summary(out, "hexsos_summary", summary)
 
         poly_out.ShallowCopy(_argmin_polydata(P, blocks, cell_ids, result, elements))
         self._result = result
         self.UpdateProgress(1.0)
+        if said:
+            self._message(f"hexsos: the input is partly mirrored: {said}", error=False)
+
+    @staticmethod
+    def _mirrored(P, cells):
+        """The checked cells written in the mirrored node order (a bool mask in ``cells``' order) and the sentence
+        naming them (:func:`hexsos_plugins.io.handedness.mirrored_cells`)."""
+        from hexsos_plugins.io.handedness import mirrored_cells
+        from hexsos_plugins.io.mesh import Mesh
+
+        return mirrored_cells(Mesh.from_cells(P, cells), folded=True)  # every shared face read
 
 
 class HexSOSRepairFilter(_HexSOSBase):
@@ -822,7 +844,6 @@ class HexSOSRepairFilter(_HexSOSBase):
             raise ValueError(f"the input has no hexahedra to repair: it has {_cell_type_summary(types)}")
         H = np.concatenate([c for c, _ in hex_blocks]) if hex_blocks else np.zeros((0, 8), dtype=np.int64)
         cell_ids = np.concatenate([ids for _, ids in hex_blocks]) if hex_blocks else np.zeros(0, dtype=np.int64)
-        is_voxel = types[cell_ids] == VTK_VOXEL
         others = [(t, c) for t, c, _ in blocks if t != "hexahedron"]
         pinned = None
         if self._pin_non_hex:

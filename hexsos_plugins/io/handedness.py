@@ -15,7 +15,7 @@ import numpy as np
 from ..cells.elements import CELL_TYPES
 from ..errors import LeftHandedMeshError
 
-__all__ = ["right_handed"]
+__all__ = ["right_handed", "mirrored_cells"]
 
 
 def right_handed(mesh, fix: bool, *, folded: bool = False, name: str | None = None,
@@ -49,6 +49,33 @@ def right_handed(mesh, fix: bool, *, folded: bool = False, name: str | None = No
     LeftHandedMeshError
         Some cells are mirrored and ``fix`` is False.
     """
+    overall, left, some, flip, said = _mirrored(mesh, folded)
+    if not flip.any():
+        return mesh, overall, flip
+    if not fix:
+        what = name or mesh.path or "the mesh"
+        raise LeftHandedMeshError(f"{what} is {'partly mirrored' if some else 'left-handed'}: {said}. {hint}")
+    out = mesh.flipped(cells=flip)
+    if not some:
+        return out, f"left-handed ({', '.join(left)})", flip
+    which = [f"all {t}" for t in left] + [f"{k} {t}" for t, k in some.items()]
+    return out, f"mirrored ({', '.join(which)} cells)", flip
+
+
+def mirrored_cells(mesh, *, folded: bool = False):
+    """What :func:`right_handed` finds, for a door that checks cells as they are written and says what it found
+    beside its verdicts: ``(mask, sentence)``, the (n_cells,) bool mask of the cells written in the mirrored node
+    order (a type all negative at its centres, or cells whose faces meet their neighbours' the wrong way round:
+    they fold over them, valid or not cell by cell) and the sentence that names them ("" when there are none).
+    ``folded`` as for :func:`right_handed` (the faces are read anyway when some cell is negative at its
+    centre)."""
+    _, _, _, flip, said = _mirrored(mesh, folded)
+    return flip, said
+
+
+def _mirrored(mesh, folded):
+    """(the orientation of the whole, the left-handed types, {type: its mirrored cells}, the mask of every cell to
+    flip, the sentence naming them)"""
     det = mesh.centre_det()  # one pass for both rules
     overall, per_type = mesh.orientation_and_types(det)
     left = [t for t, o in per_type.items() if o == "left-handed"]
@@ -57,8 +84,6 @@ def right_handed(mesh, fix: bool, *, folded: bool = False, name: str | None = No
     types = mesh.cell_types
     for t in left:
         mirrored[types == CELL_TYPES.index(t)] = False
-    if not left and not mirrored.any():
-        return mesh, overall, mirrored
     counts = mesh.counts_by_type()
     some = {t: int(np.count_nonzero(mirrored[types == CELL_TYPES.index(t)])) for t in counts}
     some = {t: k for t, k in some.items() if k}
@@ -73,13 +98,5 @@ def right_handed(mesh, fix: bool, *, folded: bool = False, name: str | None = No
                     + f" (cells {shown}) are written in the mirrored node order: their faces meet their neighbours' "
                     "the wrong way round (valid or not cell by cell, they fold over them), or their block is "
                     "negative throughout)")
-    if not fix:
-        what = name or mesh.path or "the mesh"
-        raise LeftHandedMeshError(f"{what} is {'partly mirrored' if some else 'left-handed'}: {'; '.join(said)}. "
-                                  f"{hint}")
     flip = mirrored | np.isin(types, [CELL_TYPES.index(t) for t in left])
-    out = mesh.flipped(cells=flip)
-    if not some:
-        return out, f"left-handed ({', '.join(left)})", flip
-    which = [f"all {t}" for t in left] + [f"{k} {t}" for t, k in some.items()]
-    return out, f"mirrored ({', '.join(which)} cells)", flip
+    return overall, left, some, flip, "; ".join(said)
