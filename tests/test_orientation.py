@@ -85,7 +85,7 @@ def test_the_published_kitten_folds_over_itself_at_40_hexes(capsys):
 def test_hexsos_repair_names_the_fold_and_repairs_it_with_fix_orientation(tmp_path, capsys):
     """``hexsos repair`` reads a file folded by its node order as an error naming the cell (exit 2, one line, no
     traceback); with ``--fix-orientation`` it flips it and repairs (exit 0). ``hexsos check`` judges each cell as
-    written (every one valid here) and does not read every face for folds."""
+    written (every one valid here) and reads every face for folds only with ``--folds``."""
     import meshio
 
     from hexsos_plugins import cli
@@ -104,6 +104,21 @@ def test_hexsos_repair_names_the_fold_and_repairs_it_with_fix_orientation(tmp_pa
     assert np.array_equal(H2[1], H[1][FLIP]) and not Mesh.from_arrays(m.points, H2).folded_cells().any()
     assert (hs.check(m.points, H2).status == 1).all()
     assert cli.main(["check", str(src), "--no-progress"]) == 0
+    capsys.readouterr()
+    # with --folds it reads them as the repair does: named (exit 2); flipped, the fold is an invalid hex (exit 1)
+    assert cli.main(["check", str(src), "--no-progress", "--folds"]) == 2
+    err = capsys.readouterr().err
+    assert "partly mirrored" in err and "(cells 1)" in err and "--fix-orientation" in err
+    assert cli.main(["check", str(src), "--no-progress", "--folds", "--fix-orientation", "--json"]) == 1
+    import json
+
+    d = json.loads(capsys.readouterr().out)
+    assert d["invalid"] == 1 and d["orientation"].startswith("mirrored (1 hexahedron")
+    # a right-handed, unfolded file passes the same reading
+    P2, H3 = structured_grid(2)
+    ok = tmp_path / "grid.vtu"
+    meshio.write(ok, meshio.Mesh(P2, [("hexahedron", H3)]))
+    assert cli.main(["check", str(ok), "--no-progress", "--folds"]) == 0
 
 
 def test_where_the_signs_name_the_larger_class_the_smaller_is_not_named_too():
