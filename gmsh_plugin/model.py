@@ -29,7 +29,10 @@ Views posted (re-posted in place on every check, so repeated checks do not pile 
   dark red and undecided orange (no colour bar: the key says what the colours mean).
 * ``"hexsos: invalid inside only"``: ElementData over the invalid elements that are valid at every node (what
   node checks miss), value 0, drawn magenta just around them.
-* ``"hexsos: key"``: two lines of text at the top of the graphics naming the colours, with the counts.
+* ``"hexsos: written mirrored"``: ElementData over the elements written in the mirrored node order (they fold
+  over their neighbours whatever their own verdicts; :func:`check_model`), value 0, drawn blue around them.
+* ``"hexsos: key"``: two lines of text at the top of the graphics naming the colours, with the counts (a third
+  when elements are written mirrored).
 * ``"hexsos: where invalid elements fold"``: list data, one scalar point (``SP``) per invalid element at
   x(u*), the world position of its argmin, valued by its min det J.
 * ``"hexsos: displacement"`` (after a repair): NodeData, the vector each node moved.
@@ -53,6 +56,7 @@ __all__ = [
     "VIEW_DISPLACEMENT",
     "VIEW_INSIDE_ONLY",
     "VIEW_KEY",
+    "VIEW_MIRRORED",
     "VIEW_NAMES",
     "VIEW_SAFE_STEP",
     "safe_step_model",
@@ -80,12 +84,16 @@ VIEW_ARGMIN = "hexsos: where invalid elements fold"
 VIEW_DISPLACEMENT = "hexsos: displacement"
 VIEW_INSIDE_ONLY = "hexsos: invalid inside only"
 VIEW_KEY = "hexsos: key"
+VIEW_MIRRORED = "hexsos: written mirrored"
 #: Result keys of :func:`post_views` / :func:`hexsos_views` and the view names they stand for.
 VIEW_NAMES = {"min_det": VIEW_MIN_DET, "status": VIEW_STATUS, "argmin": VIEW_ARGMIN,
-              "displacement": VIEW_DISPLACEMENT, "inside_only": VIEW_INSIDE_ONLY, "key": VIEW_KEY}
-#: Colours of the status view (undecided, invalid), of the invalid-inside-only elements, as RGB 0-255: the
-#: other doors' (orange undecided, red invalid, magenta invalid inside only)
-STATUS_RGB = {"undecided": (255, 140, 0), "invalid": (170, 0, 0), "inside_only": (255, 0, 255)}
+              "displacement": VIEW_DISPLACEMENT, "inside_only": VIEW_INSIDE_ONLY, "key": VIEW_KEY,
+              "mirrored": VIEW_MIRRORED}
+#: Colours of the status view (undecided, invalid), of the invalid-inside-only elements and of those written in
+#: the mirrored node order, as RGB 0-255: the other doors' (orange undecided, red invalid, magenta invalid inside
+#: only), and blue
+STATUS_RGB = {"undecided": (255, 140, 0), "invalid": (170, 0, 0), "inside_only": (255, 0, 255),
+              "mirrored": (0, 90, 255)}
 
 
 class GmshModelError(HexsosError, RuntimeError):
@@ -387,7 +395,8 @@ def post_views(result, element_tags=None, points=None, cells=None, *, model: str
         order >= 3: Gmsh 4.15 posts no element data on a model holding them, and ``"element_views"`` then says
         so instead) and
         ``"argmin"`` (list data: one scalar point per invalid element at the world position of its argmin,
-        valued by its min det J).
+        valued by its min det J); ``"inside_only"`` and ``"mirrored"`` (the elements :func:`check_model` found
+        written in the mirrored node order, blue; empty when none) beside the status view, and ``"key"``.
     """
     gmsh = gmsh_api()
     element_tags, points, cells, model = _gmsh_data(result, element_tags, points, cells, model)
@@ -432,6 +441,18 @@ def post_views(result, element_tags=None, points=None, cells=None, *, model: str
         gmsh.view.option.setNumber(tag, "Explode", 1.02)  # drawn just around the dark red of the status view
         _colour_table(tag, [STATUS_RGB["inside_only"]])
 
+        # the elements written in the mirrored node order (check_model's finding), valid or not on their own
+        mirrored = getattr(result, "extra", {}).get("mirrored_element_tags")
+        views["mirrored"] = tag = _new_view("mirrored", existing)
+        if mirrored is not None and len(mirrored):
+            gmsh.view.addHomogeneousModelData(tag, 0, model, "ElementData", np.asarray(mirrored, dtype=np.uint64),
+                                              np.zeros(len(mirrored)), numComponents=1)
+        else:
+            gmsh.view.addListData(tag, "SS", 0, [])
+        gmsh.view.option.setNumber(tag, "ShowScale", 0)
+        gmsh.view.option.setNumber(tag, "Explode", 1.04)
+        _colour_table(tag, [STATUS_RGB["mirrored"]])
+
     # the key, at the top left of the graphics, instead of the status view's colour bar, whose
     # values (-1, 0) would say nothing: what each colour means, with the counts
     if "status" in views:
@@ -440,6 +461,9 @@ def post_views(result, element_tags=None, points=None, cells=None, *, model: str
     lines = [f"hexsos: {c['invalid']} invalid (dark red), {c['invalid_inside_only']} of them inside only "
              f"(magenta), {c['undecided']} undecided (orange)",
              "white spheres: where det J is smallest" if c["invalid"] else "every element not drawn is valid"]
+    mirrored = getattr(result, "extra", {}).get("mirrored_element_tags")
+    if mirrored is not None and len(mirrored):
+        lines.append(f"{len(mirrored)} written in the mirrored node order (blue): they fold over their neighbours")
     views["key"] = tag = _new_view("key", existing)
     for k, line in enumerate(lines):
         gmsh.view.addListDataString(tag, [10, 14 + 18 * k], [line], ["FontSize", "14"])
@@ -525,7 +549,8 @@ def write_views(path: str) -> list:
         if ext.lower() == ".msh":
             save_mesh = gmsh.option.getNumber("PostProcessing.SaveMesh")
             try:
-                model_based = [k for k in order if k != "argmin" and not (k == "inside_only" and _empty(views[k]))]
+                model_based = [k for k in order if k != "argmin" and not (k in ("inside_only", "mirrored")
+                                                                           and _empty(views[k]))]
                 for i, key in enumerate(model_based):
                     gmsh.option.setNumber("PostProcessing.SaveMesh", 1 if i == 0 else 0)
                     gmsh.view.write(views[key], path, append=i > 0)

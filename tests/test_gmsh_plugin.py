@@ -142,12 +142,12 @@ def test_views_hold_the_results_per_element_tag(session, demo):
     _, etags = _load_scrambled(P, H, seed=1)
     result = gmsh_plugin.check_model()
     views = result.extra["gmsh_views"]
-    assert set(views) == {"min_det", "status", "argmin", "inside_only", "key"}
+    assert set(views) == {"min_det", "status", "argmin", "inside_only", "key", "mirrored"}
     assert gm.hexsos_views() == views
     names = {k: gmsh.option.getString(f"View[{gmsh.view.getIndex(t)}].Name") for k, t in views.items()}
     assert names == {"min_det": "hexsos: min det J", "status": "hexsos: status",
                      "argmin": "hexsos: where invalid elements fold", "inside_only": "hexsos: invalid inside only",
-                     "key": "hexsos: key"}
+                     "key": "hexsos: key", "mirrored": "hexsos: written mirrored"}
 
     for key, expected in (("min_det", ref.min_det), ("status", ref.status.astype(float))):
         dtype, tags, data, _, ncomp = gmsh.view.getHomogeneousModelData(views[key], 0)
@@ -176,7 +176,7 @@ def test_checking_again_replaces_the_views(session, demo):
     second = gmsh_plugin.check_model().extra["gmsh_views"]
     assert second == first and len(gmsh.view.getTags()) == n_views
     gm.remove_views()
-    assert gm.hexsos_views() == {} and len(gmsh.view.getTags()) == n_views - 5
+    assert gm.hexsos_views() == {} and len(gmsh.view.getTags()) == n_views - 6
 
 
 def test_post_views_of_a_kernel_result(session):
@@ -378,7 +378,7 @@ def test_panel_check_button(session, demo):
         c["hexes"], c["invalid"], c["invalid_inside_only"], c["undecided"])
     assert r["min_det"] == pytest.approx(float(ref.min_det.min()), abs=1e-12)
     assert f"{c['cells']} hexahedron ({c['invalid']} invalid, 1 inside only)" in r["message"]
-    assert set(gm.hexsos_views()) == {"min_det", "status", "argmin", "inside_only", "key"}
+    assert set(gm.hexsos_views()) == {"min_det", "status", "argmin", "inside_only", "key", "mirrored"}
     assert panel.last_result().counts() == c
     # unrelated actions are left alone and keep the loop going
     assert _press("check") is True and _results()["invalid"] == c["invalid"]
@@ -557,6 +557,10 @@ def test_panel_repair_reverses_a_folded_element_only_when_asked(session):
     assert panel.last_result().extra["mirrored_element_tags"].tolist() == [int(etags[1])]
     assert f"1 element (tags {int(etags[1])}) written in the mirrored node order" in r["message"]
     assert "'Fix orientation' = 1" in r["message"]
+    views = gm.hexsos_views()
+    _, shown, _, _, _ = gmsh.view.getHomogeneousModelData(views["mirrored"], 0)
+    assert np.asarray(shown).tolist() == [int(etags[1])]
+    assert any("1 written in the mirrored node order (blue)" in t for t in _strings(views["key"]))
     before = [gmsh.model.mesh.getElement(int(t))[1].tolist() for t in etags]
     assert _press(panel.ACTION_REPAIR) is True
     msg = _results()["message"]
@@ -989,9 +993,10 @@ def test_status_views_colour_inside_only_apart_and_carry_a_key(demo):
         (text,) = [s for s in _strings(views["key"]) if "invalid" in s]
         assert f"{c['invalid']} invalid (dark red)" in text and f"{c['invalid_inside_only']} of them inside only" \
             in text and f"{c['undecided']} undecided" in text
+        assert not any("mirrored" in t for t in _strings(views["key"]))  # none written mirrored: no such line
         # re-posting replaces the views instead of piling them up
         gmsh_plugin.check_model()
-        assert len(gmsh.view.getTags()) == len(gm.hexsos_views()) == 5
+        assert len(gmsh.view.getTags()) == len(gm.hexsos_views()) == 6
     finally:
         gmsh.finalize()
 
