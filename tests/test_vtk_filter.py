@@ -605,6 +605,15 @@ def test_repair_flips_a_folded_cell_only_when_asked():
     assert fingerprint(grid) == before
 
 
+def _checked(grid):
+    """The check filter's output grid for ``grid`` and the VTK messages it sent (it must succeed)."""
+    f = HexSOSCheckFilter()
+    msgs = Messages(f)
+    f.SetInputDataObject(0, grid)
+    assert f.Update()
+    return f.GetOutputDataObject(0), msgs
+
+
 def test_check_marks_a_folded_cell_beside_its_verdicts():
     """The folded column (the middle hex written mirrored, lying inside the lowest) beside a quad: every hex valid by
     its own node order, so the check's status says valid; hexsos_mirrored marks the middle one, a VTK warning and
@@ -616,11 +625,7 @@ def test_check_marks_a_folded_cell_beside_its_verdicts():
     pts = np.concatenate([P, [[5.0, 0, 0], [6, 0, 0], [6, 1, 0]]])
     grid = make_grid(pts, [(HEX, h) for h in H] + [(QUAD, [0, 16, 17, 18])])
     before = fingerprint(grid)
-    f = HexSOSCheckFilter()
-    msgs = Messages(f)
-    f.SetInputDataObject(0, grid)
-    assert f.Update()
-    out = f.GetOutputDataObject(0)
+    out, msgs = _checked(grid)
     assert cell_array(out, "hexsos_status").tolist() == [1, 1, 1, -2]
     assert cell_array(out, "hexsos_mirrored").tolist() == [0, 1, 0, 0]
     assert not msgs.errors and len(msgs.warnings) == 1
@@ -635,12 +640,7 @@ def test_check_marks_a_folded_cell_beside_its_verdicts():
     Q[mid[4:]] = Q[mid[:4]] + [0, 0, 1.0]
     top = H[2]
     Q[top[4:]] = Q[top[:4]] + [0, 0, 1.0]
-    ok = make_grid(Q, [(HEX, H[0]), (HEX, mid), (HEX, H[2]), (QUAD, [0, 16, 17, 18])])
-    g = HexSOSCheckFilter()
-    msgs = Messages(g)
-    g.SetInputDataObject(0, ok)
-    assert g.Update()
-    out = g.GetOutputDataObject(0)
+    out, msgs = _checked(make_grid(Q, [(HEX, H[0]), (HEX, mid), (HEX, H[2]), (QUAD, [0, 16, 17, 18])]))
     assert cell_array(out, "hexsos_status").tolist() == [1, 1, 1, -2]
     assert cell_array(out, "hexsos_mirrored").tolist() == [0, 0, 0, 0]
     assert not msgs.warnings and not msgs.errors
