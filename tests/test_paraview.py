@@ -352,3 +352,34 @@ def test_paraview_gui_draws_curved_lagrange_cells_in_the_status_colours(tmp_path
         assert bad > 10 and red > 5000 and fold > 200 and drawn > 0.1, (bad, red, fold, drawn)
         bad, red, fold, drawn = run(0.0, 0.0, "straight")
     assert bad == 0 and red == 0 and fold == 0 and drawn > 0.1, (bad, red, fold, drawn)
+
+
+@pytest.mark.skipif(shutil.which("paraview") is None, reason="ParaView's GUI is needed (apt-get install paraview)")
+def test_paraview_gui_draws_a_cell_folded_by_its_node_order_in_blue(tmp_path):
+    """``hexsos paraview`` on the folded column (every hex valid by its own node order, the middle one written
+    mirrored and lying inside the lowest): the check says all valid, and the GUI names and draws the middle hex in
+    the mirrored cells' solid blue; a straight column right-handed shows no blue."""
+    import meshio
+
+    from hexsos_plugins.examples import folded_column, structured_grid
+    from PIL import Image
+
+    def run(P, H, name):
+        vtu, png = tmp_path / f"{name}.vtu", tmp_path / f"{name}.png"
+        meshio.write(vtu, meshio.Mesh(P, [("hexahedron", H)]))
+        proc = subprocess.run([sys.executable, "-m", "hexsos_plugins", "paraview", str(vtu), "--screenshot", str(png),
+                               "--exit-after", "--json"], capture_output=True, text=True, timeout=300, cwd=tmp_path,
+                              env={**os.environ, "DISPLAY": display})
+        assert proc.returncode == 0, proc.stdout + proc.stderr  # every cell valid on its own
+        (m,) = json.loads([x for x in proc.stdout.splitlines() if x.startswith("{")][-1])["meshes"]
+        a = np.asarray(Image.open(png).convert("RGB")).astype(int)
+        r, g, b = a[..., 0], a[..., 1], a[..., 2]
+        blue = ((b > 120) & (b > 1.8 * r) & (b > 1.3 * g))[:, : int(0.75 * a.shape[1])].sum()
+        return m, int(blue)
+
+    with virtual_display() as display:
+        m, blue = run(*folded_column(), "folded")
+        assert (m["valid"], m["invalid"], m["mirrored"]) == (3, 0, 1) and blue > 2000, (m, blue)
+        P, H = structured_grid(1, 1, 3)
+        m, blue = run(P, H, "straight")
+    assert (m["valid"], m["invalid"], m["mirrored"]) == (3, 0, 0) and blue == 0, (m, blue)

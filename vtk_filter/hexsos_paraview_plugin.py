@@ -946,6 +946,9 @@ STATUS_COLOURS = (
 )
 #: The colour of the fold points (x(argmin) of every invalid hex).
 FOLD_COLOUR = (0.0, 0.0, 0.0)
+#: The colour of the cells written in the mirrored node order (``hexsos_mirrored``: they fold over their
+#: neighbours, whatever their status), as the Gmsh panel draws them.
+MIRRORED_COLOUR = (0.0, 0.35, 1.0)
 
 
 def _status_counts(grid) -> dict:
@@ -954,6 +957,11 @@ def _status_counts(grid) -> dict:
         return {}
     values, counts = np.unique(_to_numpy(arr), return_counts=True)
     return {int(v): int(c) for v, c in zip(values, counts)}
+
+
+def _mirrored_count(grid) -> int:
+    arr = grid.GetCellData().GetArray("hexsos_mirrored") if grid is not None else None
+    return 0 if arr is None else int(np.count_nonzero(_to_numpy(arr)))
 
 
 def _colour_by_status(simple, displays, view, counts):
@@ -980,12 +988,13 @@ def open_checked(paths, *, names=None, view=None, screenshot=None, size=(1280, 8
 
     Runs inside ParaView (GUI or ``pvpython``; this plugin loaded). Each mesh is shown translucent and coloured
     by ``hexsos_status`` (:data:`STATUS_COLOURS`; the legend lists the statuses present, with their counts),
-    its cells not proven valid opaque-ish on top (a Threshold), and the fold points (output port 1:
-    x(argmin) of every invalid hex) as black spheres; the camera looks at everything obliquely. With
+    its cells not proven valid opaque-ish on top (a Threshold), those written in the mirrored node order
+    (``hexsos_mirrored``) solid blue (:data:`MIRRORED_COLOUR`), and the fold points (output port 1: x(argmin) of
+    every invalid hex) as black spheres; the camera looks at everything obliquely. With
     ``screenshot`` the view is saved there as a PNG of ``size`` pixels (without the orientation axes).
 
     Returns a dict: ``meshes`` (per file: ``file``, ``cells``, ``valid``, ``invalid``, ``undecided``,
-    ``not_checked``, ``invalid_inside_only``, ``fold_points``; or ``file`` and ``error`` when ParaView cannot
+    ``not_checked``, ``invalid_inside_only``, ``fold_points``, ``mirrored``; or ``file`` and ``error`` when ParaView cannot
     read it or the check fails, with the filter's own message: the other files are still shown),
     ``screenshot``, ``plugin`` (this file) and ``kernel`` (the ``hexsos_plugins`` package ParaView's Python
     imported).
@@ -1021,6 +1030,7 @@ def open_checked(paths, *, names=None, view=None, screenshot=None, size=(1280, 8
             "not_checked": counts.get(STATUS_NOT_A_HEX, 0),
             "invalid_inside_only": int(np.count_nonzero(getattr(result, "invalid_inside_only", ()))),
             "fold_points": int(folds.GetNumberOfPoints()),
+            "mirrored": _mirrored_count(grid),
         })
 
         shown = simple.Show(check, view)
@@ -1037,6 +1047,18 @@ def open_checked(paths, *, names=None, view=None, screenshot=None, size=(1280, 8
             bad_shown = simple.Show(bad, view)
             bad_shown.Opacity = 0.6
             displays.append(bad_shown)
+        if report["meshes"][-1]["mirrored"]:  # the cells written mirrored, solid blue on top
+            mirrored = simple.Threshold(Input=check)
+            simple.RenameSource(f"{name}: written mirrored", mirrored)
+            mirrored.Scalars = ["CELLS", "hexsos_mirrored"]
+            mirrored.LowerThreshold = 1
+            mirrored.UpperThreshold = 1
+            if "ThresholdMethod" in mirrored.ListProperties():  # ParaView >= 5.10
+                mirrored.ThresholdMethod = "Between"
+            mirrored_shown = simple.Show(mirrored, view)
+            mirrored_shown.ColorArrayName = ["CELLS", ""]  # one solid colour
+            mirrored_shown.AmbientColor = list(MIRRORED_COLOUR)
+            mirrored_shown.DiffuseColor = list(MIRRORED_COLOUR)
         fold_shown = simple.Show(simple.OutputPort(check, 1), view)
         fold_shown.ColorArrayName = ["POINTS", ""]  # one solid colour
         fold_shown.SetRepresentationType("Points")
