@@ -85,11 +85,7 @@ LP_METHOD = "highs-ipm"
 #: too; at 1e-5 0.515 / 0.494 / 0.511, and at 1e-4 HiGHS ends most programs without a solution (0.258). The
 #: other seven published meshes' medians the same or higher (cat_2 0.846 -> 0.851, its first start 0.791 -> 0.841).
 #: A scipy that leaves out the options it does not know (Debian's 1.10, in ParaView's Python) keeps the crossover.
-#: Without HiGHS's presolve (linprog's own ``presolve`` option): the programs are small and their rows that cannot
-#: bind are left out already (:func:`binding_rows`); from kitten_with_bifur_3's start of these steps (a repair's mesh
-#: at 0.591), 28 s of them on two threads solved 1,674 / 1,830 / 1,899 programs, ending at 0.7201 / 0.7211 / 0.7217,
-#: where with it 1,539-1,623 programs in five runs ended at 0.7197-0.7203.
-LP_OPTIONS = {"run_crossover": "off", "ipm_optimality_tolerance": 1e-6, "presolve": False}
+LP_OPTIONS = {"run_crossover": "off", "ipm_optimality_tolerance": 1e-6}
 #: A step refused whole is tried at these parts of it before the next program: the program's move raises the
 #: linearized minimum all along it, and a part often keeps a gain the whole loses at second order (38% of rockarm's
 #: steps were refused whole). A try costs an evaluation, a program about ten times more. On the published meshes the
