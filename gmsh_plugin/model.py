@@ -463,7 +463,7 @@ def post_views(result, element_tags=None, points=None, cells=None, *, model: str
              "white spheres: where det J is smallest" if c["invalid"] else "every element not drawn is valid"]
     mirrored = getattr(result, "extra", {}).get("mirrored_element_tags")
     if mirrored is not None and len(mirrored):
-        lines.append(f"{len(mirrored)} written in the mirrored node order (blue): they fold over their neighbours")
+        lines.append(f"{len(mirrored)} written in the mirrored node order (blue)")
     views["key"] = tag = _new_view("key", existing)
     for k, line in enumerate(lines):
         gmsh.view.addListDataString(tag, [10, 14 + 18 * k], [line], ["FontSize", "14"])

@@ -288,9 +288,9 @@ def _mirrored(result) -> str:
     if tags is None or not len(tags):
         return ""
     shown = ", ".join(map(str, tags[:5])) + (", ..." if len(tags) > 5 else "")
-    return (f"; {len(tags)} element{'s' * (len(tags) != 1)} (tags {shown}) written in the mirrored node order: "
-            "they fold over their neighbours whatever their own verdicts (Repair with 'Fix orientation' = 1 "
-            "reverses them)")
+    return (f"; {len(tags)} element{'s' * (len(tags) != 1)} (tags {shown}) written in the mirrored node order "
+            "(negative throughout, or folded over their neighbours whatever their own verdicts; Repair with 'Fix "
+            "orientation' = 1 reverses them)")
 
 
 def _by_type(result) -> str:

@@ -615,7 +615,7 @@ class HexSOSCheckFilter(_HexSOSBase):
         self._result = result
         self.UpdateProgress(1.0)
         if said:
-            self._message(f"hexsos: the input is partly mirrored: {said}", error=False)
+            self._message(f"hexsos: cells written in the mirrored node order: {said}", error=False)
 
     @staticmethod
     def _mirrored(P, cells):

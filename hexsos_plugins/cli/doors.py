@@ -556,8 +556,7 @@ def _finish(args, report, rc, exe, converted) -> int:
     else:
         for m in checked:
             extra = f", {m['not_checked']} not checked" if m.get("not_checked") else ""
-            mirrored = (f"; {m['mirrored']} written in the mirrored node order (blue: they fold over their "
-                        "neighbours)") if m.get("mirrored") else ""
+            mirrored = f"; {m['mirrored']} written in the mirrored node order (blue)" if m.get("mirrored") else ""
             print(f"{m['file']}: {m['cells']} cells: {m['valid']} valid, {m['invalid']} invalid "
                   f"({m['invalid_inside_only']} inside only), {m['undecided']} undecided{extra}; "
                   f"{m['fold_points']} fold points shown{mirrored}")
