@@ -400,6 +400,8 @@ def post_views(result, element_tags=None, points=None, cells=None, *, model: str
     """
     gmsh = gmsh_api()
     element_tags, points, cells, model = _gmsh_data(result, element_tags, points, cells, model)
+    mirrored = getattr(result, "extra", {}).get("mirrored_element_tags")  # check_model's, else none
+    mirrored = np.zeros(0, dtype=np.uint64) if mirrored is None else np.asarray(mirrored, dtype=np.uint64)
     existing = hexsos_views()
     views = {}
 
@@ -442,11 +444,10 @@ def post_views(result, element_tags=None, points=None, cells=None, *, model: str
         _colour_table(tag, [STATUS_RGB["inside_only"]])
 
         # the elements written in the mirrored node order (check_model's finding), valid or not on their own
-        mirrored = getattr(result, "extra", {}).get("mirrored_element_tags")
         views["mirrored"] = tag = _new_view("mirrored", existing)
-        if mirrored is not None and len(mirrored):
-            gmsh.view.addHomogeneousModelData(tag, 0, model, "ElementData", np.asarray(mirrored, dtype=np.uint64),
-                                              np.zeros(len(mirrored)), numComponents=1)
+        if len(mirrored):
+            gmsh.view.addHomogeneousModelData(tag, 0, model, "ElementData", mirrored, np.zeros(len(mirrored)),
+                                              numComponents=1)
         else:
             gmsh.view.addListData(tag, "SS", 0, [])
         gmsh.view.option.setNumber(tag, "ShowScale", 0)
@@ -461,8 +462,7 @@ def post_views(result, element_tags=None, points=None, cells=None, *, model: str
     lines = [f"hexsos: {c['invalid']} invalid (dark red), {c['invalid_inside_only']} of them inside only "
              f"(magenta), {c['undecided']} undecided (orange)",
              "white spheres: where det J is smallest" if c["invalid"] else "every element not drawn is valid"]
-    mirrored = getattr(result, "extra", {}).get("mirrored_element_tags")
-    if mirrored is not None and len(mirrored):
+    if len(mirrored):
         lines.append(f"{len(mirrored)} written in the mirrored node order (blue)")
     views["key"] = tag = _new_view("key", existing)
     for k, line in enumerate(lines):

@@ -959,6 +959,19 @@ def _status_counts(grid) -> dict:
     return {int(v): int(c) for v, c in zip(values, counts)}
 
 
+def _show_cells_between(simple, source, view, label, array, low, high):
+    """Show the cells of ``source`` whose cell array ``array`` lies in [low, high] (a Threshold named ``label``) in
+    ``view``; returns the display."""
+    cut = simple.Threshold(Input=source)
+    simple.RenameSource(label, cut)
+    cut.Scalars = ["CELLS", array]
+    cut.LowerThreshold = low
+    cut.UpperThreshold = high
+    if "ThresholdMethod" in cut.ListProperties():  # ParaView >= 5.10
+        cut.ThresholdMethod = "Between"
+    return simple.Show(cut, view)
+
+
 def _mirrored_count(grid) -> int:
     arr = grid.GetCellData().GetArray("hexsos_mirrored") if grid is not None else None
     return 0 if arr is None else int(np.count_nonzero(_to_numpy(arr)))
@@ -1037,25 +1050,12 @@ def open_checked(paths, *, names=None, view=None, screenshot=None, size=(1280, 8
         shown.Opacity = 0.3
         displays.append(shown)
         if counts.get(0, 0) + counts.get(-1, 0):  # the cells not proven valid, on top
-            bad = simple.Threshold(Input=check)
-            simple.RenameSource(f"{name}: not proven valid", bad)
-            bad.Scalars = ["CELLS", "hexsos_status"]
-            bad.LowerThreshold = -1
-            bad.UpperThreshold = 0
-            if "ThresholdMethod" in bad.ListProperties():  # ParaView >= 5.10
-                bad.ThresholdMethod = "Between"
-            bad_shown = simple.Show(bad, view)
+            bad_shown = _show_cells_between(simple, check, view, f"{name}: not proven valid", "hexsos_status", -1, 0)
             bad_shown.Opacity = 0.6
             displays.append(bad_shown)
         if report["meshes"][-1]["mirrored"]:  # the cells written mirrored, solid blue on top
-            mirrored = simple.Threshold(Input=check)
-            simple.RenameSource(f"{name}: written mirrored", mirrored)
-            mirrored.Scalars = ["CELLS", "hexsos_mirrored"]
-            mirrored.LowerThreshold = 1
-            mirrored.UpperThreshold = 1
-            if "ThresholdMethod" in mirrored.ListProperties():  # ParaView >= 5.10
-                mirrored.ThresholdMethod = "Between"
-            mirrored_shown = simple.Show(mirrored, view)
+            mirrored_shown = _show_cells_between(simple, check, view, f"{name}: written mirrored", "hexsos_mirrored",
+                                                 1, 1)
             mirrored_shown.ColorArrayName = ["CELLS", ""]  # one solid colour
             mirrored_shown.AmbientColor = list(MIRRORED_COLOUR)
             mirrored_shown.DiffuseColor = list(MIRRORED_COLOUR)
