@@ -121,6 +121,31 @@ def test_hexsos_repair_names_the_fold_and_repairs_it_with_fix_orientation(tmp_pa
     assert cli.main(["check", str(ok), "--no-progress", "--folds"]) == 0
 
 
+def test_hexsos_convert_reads_the_faces_for_folds_with_folds(tmp_path, capsys):
+    """``hexsos convert --folds`` reads every shared face as ``check --folds`` does: the folded column is refused by
+    name (exit 2, one line, nothing written); with ``--fix-orientation`` the flipped cell is written flipped and
+    its status is invalid (0); without ``--folds`` each cell is converted as written (every one valid)."""
+    import meshio
+
+    from hexsos_plugins import cli
+
+    P, H = folded_column()
+    src, out = tmp_path / "fold.vtu", tmp_path / "out.vtk"
+    meshio.write(src, meshio.Mesh(P, [("hexahedron", H)]))
+    assert cli.main(["convert", str(src), str(out), "--no-progress"]) == 0
+    capsys.readouterr()
+    assert (meshio.read(out).cell_data_dict["hexsos_status"]["hexahedron"] == 1).all()
+    out.unlink()
+    assert cli.main(["convert", str(src), str(out), "--no-progress", "--folds"]) == 2
+    err = capsys.readouterr().err
+    assert "partly mirrored" in err and "(cells 1)" in err and "Traceback" not in err and not out.exists()
+    assert cli.main(["convert", str(src), str(out), "--no-progress", "--folds", "--fix-orientation"]) == 0
+    capsys.readouterr()
+    m = meshio.read(out)
+    assert np.array_equal(m.cells_dict["hexahedron"][1], H[1][FLIP])
+    assert list(m.cell_data_dict["hexsos_status"]["hexahedron"]) == [1, 0, 1]  # 0: invalid
+
+
 def test_where_the_signs_name_the_larger_class_the_smaller_is_not_named_too():
     """A column of three unit hexes, the lower two written mirrored (negative at their centres), the top one as it
     should be: the signs name the lower two; the fold rule, which would name the smaller class (the top one), stays

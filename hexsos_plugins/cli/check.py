@@ -24,7 +24,7 @@ def _read_and_check(path, args):
     from ..kernel import threads_for
 
     with threads_for(args.jobs):  # the orientation pass and the scaled Jacobian on the kernel's threads too
-        mesh, orient = read_mesh(path, args.fix_orientation, folded=getattr(args, "folds", False))
+        mesh, orient = read_mesh(path, args.fix_orientation, folded=args.folds)
         bar = Progress("checking", enabled=args.progress)
         try:
             result = check(mesh.points, mesh.cells, method=args.method, relaxation=args.relaxation, progress=bar,
@@ -162,6 +162,15 @@ def _cmd_demo(args) -> int:
     return 0
 
 
+def _add_folds(p) -> None:
+    """``--folds`` of ``check`` and ``convert``."""
+    p.add_argument("--folds", action="store_true",
+                   help="read every shared face for cells written in the other handedness than their neighbours, "
+                        "which fold over them though each is valid on its own (as the Gmsh panel's Check, the "
+                        "ParaView check filter and hexsos repair do; about a second per million cells). Without "
+                        "it the faces are read when some cell is negative at its centre")
+
+
 def add_parsers(sub) -> None:
     """Add ``check``, ``convert`` and ``demo`` to ``sub`` (an ``argparse`` sub-parsers action)."""
     p = sub.add_parser("check", help="prove every cell valid or invalid, with its minimum det J and where it occurs",
@@ -175,11 +184,7 @@ def add_parsers(sub) -> None:
                    help="flip the cells written in the mirrored node order before checking: a type whose cells are "
                         "all negatively oriented (a file that mirrors that type's node order), a block or part "
                         "whose faces meet their neighbours' the mirrored way round")
-    p.add_argument("--folds", action="store_true",
-                   help="read every shared face for cells written in the other handedness than their neighbours, "
-                        "which fold over them though each is valid on its own (as the Gmsh panel's Check, the "
-                        "ParaView check filter and hexsos repair do; about a second per million cells). Without "
-                        "it the faces are read when some cell is negative at its centre")
+    _add_folds(p)
     p.add_argument("--screenshot", metavar="PNG",
                    help="render the mesh coloured by min det J, invalid hexes highlighted, argmin points as spheres")
     p.add_argument("--histogram", metavar="PNG", help="plot the histogram of min det J per hex")
@@ -195,6 +200,7 @@ def add_parsers(sub) -> None:
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--fix-orientation", action="store_true",
                    help="flip the cells written in the mirrored node order (see check)")
+    _add_folds(p)
     add_check_options(p)
     p.set_defaults(func=_cmd_convert)
 
