@@ -358,7 +358,8 @@ def test_paraview_gui_draws_curved_lagrange_cells_in_the_status_colours(tmp_path
 def test_paraview_gui_draws_a_cell_folded_by_its_node_order_in_blue(tmp_path):
     """``hexsos paraview`` on the folded column (every hex valid by its own node order, the middle one written
     mirrored and lying inside the lowest): the check says all valid, and the GUI names and draws the middle hex in
-    the mirrored cells' solid blue; a straight column right-handed shows no blue."""
+    the mirrored cells' solid blue, a line in the upper left corner saying what the blue means (the status legend
+    lists the statuses only); a straight column right-handed shows no blue and no such line."""
     import meshio
 
     from hexsos_plugins.examples import folded_column, structured_grid
@@ -374,12 +375,13 @@ def test_paraview_gui_draws_a_cell_folded_by_its_node_order_in_blue(tmp_path):
         (m,) = json.loads([x for x in proc.stdout.splitlines() if x.startswith("{")][-1])["meshes"]
         a = np.asarray(Image.open(png).convert("RGB")).astype(int)
         r, g, b = a[..., 0], a[..., 1], a[..., 2]
-        blue = ((b > 120) & (b > 1.8 * r) & (b > 1.3 * g))[:, : int(0.75 * a.shape[1])].sum()
-        return m, int(blue)
+        is_blue = (b > 120) & (b > 1.8 * r) & (b > 1.3 * g)
+        top = int(0.06 * a.shape[0])  # the line that says what the blue means, in the upper left corner
+        return m, int(is_blue[top:, : int(0.75 * a.shape[1])].sum()), int(is_blue[:top].sum())
 
     with virtual_display() as display:
-        m, blue = run(*folded_column(), "folded")
-        assert (m["valid"], m["invalid"], m["mirrored"]) == (3, 0, 1) and blue > 2000, (m, blue)
+        m, blue, said = run(*folded_column(), "folded")
+        assert (m["valid"], m["invalid"], m["mirrored"]) == (3, 0, 1) and blue > 2000 and said > 300, (m, blue, said)
         P, H = structured_grid(1, 1, 3)
-        m, blue = run(P, H, "straight")
-    assert (m["valid"], m["invalid"], m["mirrored"]) == (3, 0, 0) and blue == 0, (m, blue)
+        m, blue, said = run(P, H, "straight")
+    assert (m["valid"], m["invalid"], m["mirrored"]) == (3, 0, 0) and blue == said == 0, (m, blue, said)

@@ -977,6 +977,19 @@ def _mirrored_count(grid) -> int:
     return 0 if arr is None else int(np.count_nonzero(_to_numpy(arr)))
 
 
+def _say_in_colour(simple, view, words, rgb):
+    """``words`` in the upper left corner of ``view``, in colour ``rgb``: what a colour drawn apart from the
+    status legend means."""
+    text = simple.Text(Text=words)
+    simple.RenameSource("hexsos: key", text)
+    shown = simple.Show(text, view)
+    shown.WindowLocation = "Upper Left Corner"
+    shown.Color = list(rgb)
+    shown.FontSize = 16
+    shown.Bold = 1
+    return shown
+
+
 def _colour_by_status(simple, displays, view, counts):
     """One categorical colour map for ``hexsos_status`` on ``displays``; the legend lists the statuses present,
     with their number of cells."""
@@ -1067,6 +1080,10 @@ def open_checked(paths, *, names=None, view=None, screenshot=None, size=(1280, 8
         fold_shown.AmbientColor = list(FOLD_COLOUR)
         fold_shown.DiffuseColor = list(FOLD_COLOUR)
         last = check
+    mirrored = sum(m.get("mirrored", 0) for m in report["meshes"])
+    if mirrored:  # the status legend's colours are the statuses'; the blue of the mirrored cells is said here
+        _say_in_colour(simple, view, f"blue: {mirrored} cell{'s' if mirrored != 1 else ''} written in the mirrored "
+                       "node order", MIRRORED_COLOUR)
     if displays:
         _colour_by_status(simple, displays, view, total)
         view.ResetCamera()
