@@ -488,9 +488,13 @@ def test_cli_unreachable_target_exits_1_with_a_certified_mesh(tmp_path, capsys):
     assert (tmp_path / "c.png").stat().st_size > 5000
 
 
-def test_band_around_the_surface_squares_the_boundary_hexes(tmp_path):
+def test_band_around_the_surface_squares_the_boundary_hexes(tmp_path, monkeypatch):
+    """The band, a fraction of each boundary vertex's edge length (its cap by the diagonal lifted: the next test),
+    lifts the cubed ball's minimum above the one held on its surface, and is used but not overrun."""
+    from hexsos_plugins.meshrepair import boundary
     from hexsos_plugins.meshrepair.boundary import boundary_model
 
+    monkeypatch.setattr(boundary, "BAND_DIAGONAL", 1.0)
     Q, H = cubed_ball()
     on = hs.repair(Q, H, surface_tolerance=0.0)
     band = hs.repair(Q, H)
@@ -515,6 +519,32 @@ def test_band_around_the_surface_squares_the_boundary_hexes(tmp_path):
                         "--surface-tolerance", "2"], capture_output=True, text=True, timeout=300)
     assert p.returncode == 2 and "Traceback" not in p.stderr and "surface_tolerance" in p.stderr
     assert len(p.stderr.strip().splitlines()) == 1 and not out.exists()
+
+
+def test_the_band_is_at_most_a_share_of_the_diagonal(monkeypatch):
+    """``boundary.BAND_DIAGONAL``: each boundary vertex's band is the tolerance's fraction of its edge length, at most
+    1.2% of the input's diagonal. On a 20^3 grid (edges 1/20 of a side) the fraction rules: 0.35 of an edge is 1.0%
+    of the diagonal; on the coarse cubed ball the cap does, for every vertex; a repair there keeps its farthest
+    boundary vertex nearer the input surface than with the cap lifted."""
+    from hexsos_plugins.meshrepair import boundary
+    from hexsos_plugins.meshrepair.boundary import boundary_model
+
+    def widths(P, H):
+        bm = boundary_model(P, [("hexahedron", H)], tolerance=SURFACE_TOLERANCE)
+        return bm.band_width(), SURFACE_TOLERANCE * bm.size, np.linalg.norm(np.ptp(P, axis=0))
+
+    w, edge, diag = widths(*structured_grid(20))
+    assert np.allclose(w, edge) and w.max() < boundary.BAND_DIAGONAL * diag
+    Q, H = cubed_ball()
+    w, edge, diag = widths(Q, H)
+    assert (edge > boundary.BAND_DIAGONAL * diag).all() and np.allclose(w, boundary.BAND_DIAGONAL * diag)
+    capped = hs.repair(Q, H)
+    monkeypatch.setattr(boundary, "BAND_DIAGONAL", 1.0)
+    assert np.allclose(widths(Q, H)[0], edge)
+    free = hs.repair(Q, H)
+    assert capped.success and free.success and _certified(capped.points, H)
+    far = [r.stats["boundary_max_distance"] for r in (capped, free)]
+    assert far[0] < 0.9 * far[1], far
 
 
 def test_vertex_steps_do_not_collapse_hex_edges(monkeypatch):

@@ -203,13 +203,17 @@ def test_published_kitten_stress_test_certified_with_its_surface_unfolded():
     assert "boundary quads turned over" in r.summary()
 
 
-def test_straighten_quads_turns_a_quad_back_out_and_stands_a_tilted_one_up_without_lowering_the_minimum():
+def test_straighten_quads_turns_a_quad_back_out_and_stands_a_tilted_one_up_without_lowering_the_minimum(monkeypatch):
     """A top quad of a 3 x 3 slab whose input normal leans toward -x, -y (set by hand): leaning by 101 degrees the
     quad is turned over, by 78 only tilted; raising its corner at the slab's centre (shared by four hexes) turns it
     back. With a hex elsewhere at 0.5 the step costs nothing below the minimum and is kept; with every hex a unit
-    cube (the minimum 1) any step lowers it, and nothing moves; nor does a pinned vertex."""
+    cube (the minimum 1) any step lowers it, and nothing moves; nor does a pinned vertex. (A band of 0.8 of an edge,
+    its cap by the diagonal lifted: the step leaves the surface by more than 1.2% of this small slab's diagonal.)"""
     from hexsos_plugins.cells.quality import scaled_jacobian
+    from hexsos_plugins.meshrepair import boundary
     from hexsos_plugins.meshrepair.localopt import straighten_quads
+
+    monkeypatch.setattr(boundary, "BAND_DIAGONAL", 1.0)
 
     P, H = _slab(4)
     low = P.copy()

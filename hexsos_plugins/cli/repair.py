@@ -61,7 +61,8 @@ def add_parser(subparsers):
                         "edges (default 45)")
     p.add_argument("--surface-tolerance", type=float, default=SURFACE_TOLERANCE, metavar="F",
                    help="--boundary slide on linear cells: how far a boundary vertex may end off the input surface, "
-                        "its feature curve or its feature corner, as a fraction of its boundary edge length "
+                        "its feature curve or its feature corner, as a fraction of its boundary edge length, and at "
+                        "most 1.2%% of the bounding box's diagonal "
                         f"(default {SURFACE_TOLERANCE:g}: room to square the quads of a curved surface; 0: exactly on "
                         "it, feature corners fixed)")
     p.add_argument("--time-limit", type=float, default=None, metavar="S",

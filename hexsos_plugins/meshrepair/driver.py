@@ -491,11 +491,11 @@ def repair(points, hexes, *, cells=None, method: str = "optimize", boundary: str
         feature edges. Default 45.
     surface_tolerance : float, keyword-only
         ``boundary="slide"``: how far a boundary vertex may end off the input surface (or its feature curve, or
-        its feature corner's position), as a fraction of its mean boundary edge length. Default
-        SURFACE_TOLERANCE = 0.2: a quad on a curved surface cannot be square, and a fifth of an edge lets the
-        last vertex steps square it (module docstring; on the published meshes of the README every boundary
-        vertex stays within 1.9% of the diagonal of the input surface); 0 keeps every boundary vertex exactly on
-        the surface and feature corners where they are.
+        its feature corner's position), as a fraction of its mean boundary edge length, and at most
+        ``boundary.BAND_DIAGONAL`` = 1.2% of the diagonal of the input's bounding box. Default
+        SURFACE_TOLERANCE = 0.35: a quad on a curved surface cannot be square, and a part of an edge lets the
+        last vertex steps and the joint steps square it (module docstring and the README's published table);
+        0 keeps every boundary vertex exactly on the surface and feature corners where they are.
     rings : int, keyword-only
         Layers of cells around the bad ones that move (default 2).
     fallback : bool, keyword-only
