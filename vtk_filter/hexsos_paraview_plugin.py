@@ -972,6 +972,15 @@ def _show_cells_between(simple, source, view, label, array, low, high):
     return simple.Show(cut, view)
 
 
+def _paint(shown, association, rgb):
+    """Display ``shown`` in one solid colour ``rgb`` instead of by an array of its ``association`` ("CELLS",
+    "POINTS"); returns it."""
+    shown.ColorArrayName = [association, ""]
+    shown.AmbientColor = list(rgb)
+    shown.DiffuseColor = list(rgb)
+    return shown
+
+
 def _mirrored_count(grid) -> int:
     arr = grid.GetCellData().GetArray("hexsos_mirrored") if grid is not None else None
     return 0 if arr is None else int(np.count_nonzero(_to_numpy(arr)))
@@ -1067,18 +1076,12 @@ def open_checked(paths, *, names=None, view=None, screenshot=None, size=(1280, 8
             bad_shown.Opacity = 0.6
             displays.append(bad_shown)
         if report["meshes"][-1]["mirrored"]:  # the cells written mirrored, solid blue on top
-            mirrored_shown = _show_cells_between(simple, check, view, f"{name}: written mirrored", "hexsos_mirrored",
-                                                 1, 1)
-            mirrored_shown.ColorArrayName = ["CELLS", ""]  # one solid colour
-            mirrored_shown.AmbientColor = list(MIRRORED_COLOUR)
-            mirrored_shown.DiffuseColor = list(MIRRORED_COLOUR)
-        fold_shown = simple.Show(simple.OutputPort(check, 1), view)
-        fold_shown.ColorArrayName = ["POINTS", ""]  # one solid colour
+            _paint(_show_cells_between(simple, check, view, f"{name}: written mirrored", "hexsos_mirrored", 1, 1),
+                   "CELLS", MIRRORED_COLOUR)
+        fold_shown = _paint(simple.Show(simple.OutputPort(check, 1), view), "POINTS", FOLD_COLOUR)
         fold_shown.SetRepresentationType("Points")
         fold_shown.RenderPointsAsSpheres = 1
         fold_shown.PointSize = 14
-        fold_shown.AmbientColor = list(FOLD_COLOUR)
-        fold_shown.DiffuseColor = list(FOLD_COLOUR)
         last = check
     mirrored = sum(m.get("mirrored", 0) for m in report["meshes"])
     if mirrored:  # the status legend's colours are the statuses'; the blue of the mirrored cells is said here

@@ -158,6 +158,7 @@ class BoundaryModel:
     quad_normal: np.ndarray | None = None  # (Q, 3) ... its unit outward normal in the input (:func:`boundary_model`)
     quad_s2: np.ndarray | None = None  # (Q,) the mean squared boundary edge length at its vertices
     leash: np.ndarray | None = None  # (B,) how far each may end from its input position (inf: any distance)
+    diagonal: float = 0.0  # of the boundary vertices' bounding box in the input (a point no cell uses is no part of it)
     trees: dict = field(default_factory=dict, repr=False, compare=False)  # kind -> NearestPoints, built once
 
     def nearest(self, P, kind):
@@ -496,11 +497,11 @@ def boundary_model(points, cells, *, feature_angle: float = 45.0, suspect=None, 
     qn = qn / np.maximum(np.linalg.norm(qn, axis=1, keepdims=True), 1e-300)
     size2 = np.zeros(N)
     size2[verts] = _sized(size) ** 2
-    # the diagonal of the boundary's box (a point no cell uses is no part of it)
     diagonal = float(np.linalg.norm(np.ptp(P[verts], axis=0))) if verts.size else 0.0
     return BoundaryModel(vertices=verts, kind=kind, normal=normal, tangent=tangent, size=size,
                          surf_V=np.ascontiguousarray(P), surf_F=np.ascontiguousarray(tri),
                          feat_E=np.ascontiguousarray(feat), feature_edges=int(feat.shape[0]),
                          tolerance=np.minimum(float(tolerance) * size, BAND_DIAGONAL * diagonal),
                          quads=np.ascontiguousarray(quads, dtype=np.int64),
-                         quad_normal=qn, quad_s2=size2[quads].mean(axis=1) if quads.shape[0] else np.zeros(0))
+                         quad_normal=qn, quad_s2=size2[quads].mean(axis=1) if quads.shape[0] else np.zeros(0),
+                         diagonal=diagonal)

@@ -658,8 +658,7 @@ def _leashed_again(first, res, run):
     if (first.boundary != "slide" or bm is None or not res.success or first.stopped or first.local
             or first.time_limit is not None or bm.vertices.size == 0 or bm.surf_F.shape[0] == 0):
         return res
-    box = bm.surf_V[bm.vertices]
-    diag = float(np.linalg.norm(box.max(axis=0) - box.min(axis=0)))
+    diag = bm.diagonal
     if not diag > 0:
         return res
     F = bm.surf_F
