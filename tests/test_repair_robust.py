@@ -619,3 +619,73 @@ def test_a_point_no_cell_uses_is_no_part_of_the_mesh_size():
             r = hs.repair(Q, H, jobs=0)
         assert r.success and r.stats["moved_over_1pct"] == ref.stats["moved_over_1pct"]
         assert np.array_equal(r.points[-1], Q[-1]) and np.array_equal(r.points[:-1], ref.points)
+
+
+def test_a_cell_collapsed_by_its_connectivity_or_named_twice_is_refused_by_name_before_anything_moves(tmp_path):
+    """A hex naming one point as its nodes 0 and 1 has an edge of no length wherever its points are: det J is 0 at
+    those corners and no repair makes it valid (repaired, it stayed invalid and the boundary moved 13.6% of the
+    diagonal). A hex named twice overlaps its copy (refused before as folded by its node order, with the advice to
+    flip one copy, which would invert it). Both are refused by name; a hex collapsed in space only (its nodes
+    distinct, two at one point) and two hexes sharing a face are repaired as before."""
+    P, H = structured_grid(3)
+    merged = H.copy()
+    merged[13, 1] = merged[13, 0]
+    with pytest.raises(InvalidInputError, match=r"1 hexahedron cell names one point at both ends of an edge \(cells "
+                                                r"13; cell 13: point \d+ as its nodes 0 and 1\)"):
+        hs.repair(P, merged)
+    twice = np.vstack([H, H[4][[4, 5, 6, 7, 0, 1, 2, 3]]])  # hex 4 again, mirrored: the same points
+    with pytest.raises(InvalidInputError, match=r"cells 27; cell 27 those of cell 4"):
+        hs.repair(P, twice)
+    # in the other cells, numbered after the hexes; a repeated node across a diagonal only is no edge of no length
+    tet = np.array([[0, 1, 5, 5]])
+    with pytest.raises(InvalidInputError, match=r"1 tetra cell names one point .* \(cells 27; cell 27: point 5 as its "
+                                                r"nodes 2 and 3\)"):
+        hs.repair(P, H, cells=[("tetra", tet)])
+    from hexsos_plugins.meshrepair.topology import collapsed_cells, repeated_cells
+
+    diagonal = H[:1].copy()
+    diagonal[0, 6] = diagonal[0, 0]
+    assert not collapsed_cells("hexahedron", diagonal).any() and collapsed_cells("hexahedron", merged).tolist() == [
+        k == 13 for k in range(27)]
+    assert not collapsed_cells("hexahedron27", np.zeros((1, 27), dtype=np.int64)).any()  # not a linear type
+    assert repeated_cells(twice).tolist() == [-1] * 27 + [4] and (repeated_cells(H) == -1).all()
+    # collapsed in space only: repaired and certified, as before
+    squashed = P.copy()
+    squashed[H[13, 1]] = squashed[H[13, 0]]
+    r = hs.repair(squashed, H)
+    assert r.success and (hs.check(r.points, H).status == 1).all()
+    # the command line: one line, exit 2, nothing written, the input as it was
+    src, out = tmp_path / "merged.vtu", tmp_path / "out.vtu"
+    meshio.write(src, meshio.Mesh(P, [("hexahedron", merged)]))
+    before = src.read_bytes()
+    p = subprocess.run([sys.executable, "-m", "hexsos_plugins", "repair", str(src), "-o", str(out)],
+                       capture_output=True, text=True, timeout=120)
+    assert p.returncode == 2 and "Traceback" not in p.stderr and len(p.stderr.strip().splitlines()) == 1
+    assert "names one point at both ends of an edge" in p.stderr and not out.exists()
+    assert src.read_bytes() == before
+
+
+def test_a_type_written_mirrored_throughout_is_refused_and_a_lone_inverted_hex_repaired():
+    """Every hex negative at its centre (a 3^3 grid in the mirrored node order): repaired, it ran 11 s of untangling,
+    reflected the box through itself and left 2 hexes invalid; now refused as ``hexsos repair`` refuses the file.
+    One mirrored type among right-handed hexes is named; a lone hex negative at its centre (inverted or mirrored,
+    nobody can tell) is repaired, as is a grid with one hex so."""
+    from hexsos_plugins.errors import LeftHandedMeshError
+
+    P, H = structured_grid(3)
+    with pytest.raises(LeftHandedMeshError, match="all 27 hexahedron cells are negative at their centres"):
+        hs.repair(P, H[:, [4, 5, 6, 7, 0, 1, 2, 3]])
+    top = np.flatnonzero(P[:, 2] == 1.0)
+    apex = len(P)
+    Pt = np.vstack([P, [[0.5, 0.5, 1.5]]])
+    quads = [q for q in H[:, 4:] if np.isin(q, top).all()][:2]
+    tets = np.array([[q[0], q[2], q[1], apex] for q in quads])  # mirrored: below their base, read from above
+    from hexsos_plugins.io.mesh import Mesh
+
+    assert (Mesh.from_cells(Pt, [("tetra", tets)]).centre_det() < 0).all()
+    with pytest.raises(LeftHandedMeshError, match="all 2 tetra cells"):
+        hs.repair(Pt, H, cells=[("tetra", tets)])
+    one = H[:1][:, [4, 5, 6, 7, 0, 1, 2, 3]]
+    Q = P[one[0]]
+    r = hs.repair(P, one)
+    assert r.success and (hs.check(r.points, one).status == 1).all() and not np.array_equal(r.points[one[0]], Q)

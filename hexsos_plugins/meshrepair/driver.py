@@ -69,7 +69,8 @@ from .fidelity import FAR_FRACTION
 from .paper import MEMORY, boundary_vertex_mask, hex_edge_length, repair_hex, repair_paper
 from .result import RepairResult, readonly
 from .scale import rescaled, unit_scale
-from .orientation import refuse_folded
+from .orientation import refuse_folded, refuse_mirrored
+from .topology import edges, refuse_collapsed
 
 __all__ = ["repair", "repair_hex", "repair_paper", "RepairResult", "DEFAULT_MARGIN", "DEFAULT_RHO", "MEMORY",
            "hex_edge_length", "boundary_vertex_mask", "check_cells", "METHODS", "BOUNDARY_MODES",
@@ -235,18 +236,8 @@ def _validate_cells(cells, n_points):
     return out
 
 
-def _edges_of(name):
-    el = ELEMENTS[name]
-    e = set()
-    for f in el.faces:
-        for j in range(len(f)):
-            a, b = f[j], f[(j + 1) % len(f)]
-            e.add((min(a, b), max(a, b)))
-    return np.array(sorted(e))
-
-
 def cell_size(P, name, conn):
-    e = _edges_of(name)
+    e = edges(name)
     X = P[conn]
     return np.linalg.norm(X[:, e[:, 1]] - X[:, e[:, 0]], axis=2).mean(axis=1)
 
@@ -273,7 +264,7 @@ def _dilate(masks, blocks, N, rings):
 
 def _edge_graph(blocks, N):
     """The unique edges (E, 2) of the linear cells."""
-    es = [conn[:, _edges_of(name)].reshape(-1, 2) for name, conn in blocks if conn.shape[0]]
+    es = [conn[:, edges(name)].reshape(-1, 2) for name, conn in blocks if conn.shape[0]]
     if not es:
         return np.zeros((0, 2), dtype=np.int64)
     return np.unique(np.sort(np.concatenate(es), axis=1), axis=0)
@@ -388,7 +379,7 @@ def _spread_collapsed(V, blocks, sizes, movable):
             continue
         V = V.copy() if count == 0 else V
         ideal = IDEAL[name] - IDEAL[name].mean(axis=0)
-        ideal = ideal / np.linalg.norm(ideal[_edges_of(name)[:, 1]] - ideal[_edges_of(name)[:, 0]], axis=1).mean()
+        ideal = ideal / np.linalg.norm(ideal[edges(name)[:, 1]] - ideal[edges(name)[:, 0]], axis=1).mean()
         for m in rows:
             c = conn[m]
             mv = movable[c]
@@ -612,6 +603,8 @@ def repair(points, hexes, *, cells=None, method: str = "optimize", boundary: str
     H = np.array(H, dtype=np.int64, copy=True)
     N = P0.shape[0]
     others = _validate_cells(cells, N)
+    refuse_collapsed(H, others)  # an edge of no length, a cell twice: no placement of the points makes them valid
+    refuse_mirrored(P0, H, others)  # written mirrored throughout: a repair would turn it inside out
     refuse_folded(P0, H, others)  # folded by its node order: no placement of the points is a mesh
     pin = np.zeros(N, dtype=bool)
     if pinned is not None:

@@ -6,17 +6,41 @@ of that face: they overlap. No placement of the points changes that, and the ker
 does not see it. So a repair refuses such a mesh and names the cells
 (:meth:`hexsos_plugins.io.mesh.Mesh.folded_cells`): flip their node order first (``hexsos repair --fix-orientation``,
 :meth:`~hexsos_plugins.io.mesh.Mesh.flipped` with :meth:`~hexsos_plugins.io.mesh.Mesh.mirrored_cells`), and the
-repair untangles them out of the fold.
+repair untangles them out of the fold. It refuses, too, a cell type whose every cell (two at least) is negative at
+its centre: written mirrored throughout, a repair would turn it inside out.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from ..cells.elements import CELL_TYPES
 from ..errors import LeftHandedMeshError
 from ..io.mesh import Mesh
 
-__all__ = ["refuse_folded"]
+__all__ = ["refuse_folded", "refuse_mirrored"]
+
+
+def refuse_mirrored(points, hexes, others) -> None:
+    """Raise :class:`~hexsos_plugins.errors.LeftHandedMeshError` when every cell of a type (two at least) of
+    ``hexes`` (M, 8) and ``others`` (a list of (type, conn)) is negative at its centre: those cells are written in
+    the mirrored node order (as ``hexsos repair`` reads a file, :func:`hexsos_plugins.io.handedness.right_handed`),
+    and a repair would turn them inside out (a 3^3 grid so written: 11 s of untangling, the box reflected through
+    itself, 2 hexes left invalid). A single cell negative at its centre may be inverted as well as mirrored: it is
+    repaired."""
+    blocks = ([("hexahedron", hexes)] if len(hexes) else []) + [(t, c) for t, c in others if len(c)]
+    if not blocks:
+        return
+    mesh = Mesh.from_cells(points, blocks)
+    det, types = mesh.centre_det(), mesh.cell_types
+    for t, count in mesh.counts_by_type().items():
+        d = det[types == CELL_TYPES.index(t)]
+        if count >= 2 and bool((d < 0).all()):
+            raise LeftHandedMeshError(
+                f"all {count} {t} cells are negative at their centres (det J < 0): they are written in the mirrored "
+                "node order, and a repair would turn them inside out. Expected cells positive at their centres: "
+                "flip them first (hexsos repair --fix-orientation; Mesh.flipped(cells=Mesh.mirrored_cells()) in "
+                "Python, or for hexes alone hexes[:, [4, 5, 6, 7, 0, 1, 2, 3]]), then repair")
 
 
 def refuse_folded(points, hexes, others) -> None:
