@@ -689,3 +689,39 @@ def test_a_type_written_mirrored_throughout_is_refused_and_a_lone_inverted_hex_r
     Q = P[one[0]]
     r = hs.repair(P, one)
     assert r.success and (hs.check(r.points, one).status == 1).all() and not np.array_equal(r.points[one[0]], Q)
+
+
+def test_hexes_of_another_shape_are_refused_with_a_typed_error():
+    P, H = structured_grid(2)
+    with pytest.raises(InvalidInputError, match=r"hexes: expected shape \(M, 8\), found \(8, 7\)"):
+        hs.repair(P, H[:, :7])  # before: numpy's ValueError from a reshape
+
+
+def test_algorithm_2_as_a_fallback_stops_at_its_seconds(monkeypatch):
+    """A 3^3 grid with one point at 1e200: scaled to unit size, its other hexes are 1e-200 of it, the untangling
+    gives up at once and the paper's Algorithm 2 takes over; it ran its 100 outer iterations (46 s) past a time limit
+    of 5 s. Now it stops after its first outer iteration past its seconds (``FALLBACK_SECONDS`` without a time limit,
+    set to 0 here; what is left of the limit with one): the repair says the cell it leaves, the best mesh seen."""
+    from hexsos_plugins.meshrepair import driver
+
+    P, H = structured_grid(3)
+    P = P + 0.3 * np.random.default_rng(1).standard_normal(P.shape)
+    P[0] = 1e200
+    seen = []
+    real = driver.repair_paper
+
+    def counted(*a, callback=None, **kw):
+        def stop(entry, points):
+            seen.append(bool(callback(entry, points)))
+            return seen[-1]
+        return real(*a, callback=stop if callback is not None else None, **kw)
+
+    monkeypatch.setattr(driver, "repair_paper", counted)
+    monkeypatch.setattr(driver, "FALLBACK_SECONDS", 0.0)
+    r = hs.repair(P, H)
+    assert not r.success and r.stats["invalid_after"] >= 1 and "not proven valid" in r.summary()
+    assert seen and seen[0] and len(seen) <= 2  # stopped at its first outer iteration (once per fallback)
+    seen.clear()
+    monkeypatch.setattr(driver, "FALLBACK_SECONDS", 60.0)
+    r = hs.repair(P, H, time_limit=0.5)
+    assert not r.success and seen and seen[-1] and len(seen) < 20  # 100 without a stop

@@ -32,8 +32,11 @@ MOVABLE_DOMAINS = ("tet", "prism", "cube")
 
 def needs_curved(hexes, cells) -> bool:
     """Whether a mesh goes to :func:`repair_curved`: it has no trilinear hexahedra (``hexes`` empty) but other
-    3-D cells, or it has cells of order 2 or more."""
-    n_hex = int(np.asarray(hexes).reshape(-1, 8).shape[0]) if np.asarray(hexes).size else 0
+    3-D cells, or it has cells of order 2 or more. ``hexes`` not of shape (M, 8): :class:`InvalidInputError`."""
+    H = np.asarray(hexes if hexes is not None else np.zeros((0, 8)))
+    if H.size and (H.ndim != 2 or H.shape[1] != 8):
+        raise InvalidInputError(f"hexes: expected shape (M, 8), found {H.shape}")
+    n_hex = int(H.shape[0]) if H.size else 0
     cells = list(cells or [])
     if any(ELEMENTS[name].order > 1 for name, _ in cells if name in ELEMENTS):
         return True

@@ -125,6 +125,12 @@ UNTANGLE_SECONDS = 60.0
 #: valid the quality stages go on from its mesh, else the untangling goes on from where it was (None: no try)
 PAPER_TRY_SECONDS = 20.0
 PAPER_TRY_BUDGET = 10.0
+#: The paper's Algorithm 2 where the untangling or the stages after it leave cells not valid stops after its first
+#: outer iteration past this many seconds without a time limit, past the time limit's end (1 s of it at least) with
+#: one (the 117,396-hex torus, tangled after 60 s of barrier, was certified by it in 1.8 s; a 3^3 grid with one point
+#: at 1e200, its other hexes 1e-200 of its size once scaled, ran its 100 outer iterations for 46 s past a time
+#: limit of 5 s)
+FALLBACK_SECONDS = 60.0
 #: Before the untangling, the cells not valid near a pinned feature corner are untangled on their own, with the
 #: corners pinned and free, for up to STUCK_OUTER outer steps each within STUCK_SECONDS (:func:`stuck_corners`); the
 #: corners that held cells slide on the surface from then on, as its other vertices do
@@ -1030,6 +1036,12 @@ class _Optimize:
         stage_s["fallback"] = stage_s.get("fallback", 0.0) + time.perf_counter() - ts
         return res.points, rf, of, okf
 
+    def _fallback_seconds(self):
+        """Seconds for the paper's Algorithm 2 as a fallback (:data:`FALLBACK_SECONDS`)."""
+        if self.time_limit is None:
+            return FALLBACK_SECONDS
+        return max(self.t0 + float(self.time_limit) - time.perf_counter(), 1.0)
+
     def _paper_start(self, V, pin, movable, bm, size, full, stage_s, seconds=None):
         """The paper's Algorithm 2 from V as a start for the quality stages (:meth:`_paper`): (its result, W), W its
         mesh where every cell is proven valid with every Bernstein coefficient positive, else None. Where its hexes
@@ -1222,7 +1234,7 @@ class _Optimize:
                 # torus with 30% of its boundary vertices slid 1.5 edge lengths: 60 s of barrier left it tangled,
                 # Algorithm 2 certified it in 1.8 s); certified with every Bernstein coefficient positive, the
                 # quality stages go on from there (before, the repair ended at its min scaled Jacobian 0.000)
-                paper, W = self._paper_start(V, pin, movable, bm, sizes1[0], full, stage_s)
+                paper, W = self._paper_start(V, pin, movable, bm, sizes1[0], full, stage_s, self._fallback_seconds())
                 if W is not None:
                     V, untangled, used_fallback = W, True, True
             info1["success"] = untangled
@@ -1351,7 +1363,7 @@ class _Optimize:
                 if okc or (int((rc.status != 1).sum()) + _other_counts(oc) < int((r.status != 1).sum()) + _other_counts(o)):
                     V, r, o, ok = cand, rc, oc, okc
         if not ok and self.fallback and not self.stopped:
-            W, rf, of, okf = paper if paper is not None else self._paper(V, pin, stage_s)
+            W, rf, of, okf = paper if paper is not None else self._paper(V, pin, stage_s, self._fallback_seconds())
             nbad = int((r.status != 1).sum()) + _other_counts(o)
             if okf or int((rf.status != 1).sum()) + _other_counts(of) < nbad:
                 V, r, o, ok = W, rf, of, okf

@@ -239,7 +239,8 @@ def local_untangle(V, H, sizes, movable, *, boundary=None, deadline=None, band=0
     V = np.array(V, dtype=np.float64, copy=True)
     H = np.ascontiguousarray(H, dtype=np.int64)
     N = V.shape[0]
-    inv3 = 1.0 / np.asarray(sizes, dtype=np.float64) ** 3
+    with np.errstate(divide="ignore", over="ignore"):  # a cell beyond 1e+-102 of unit size: the largest double
+        inv3 = np.minimum(1.0 / np.asarray(sizes, dtype=np.float64) ** 3, np.finfo(np.float64).max)
     proj, ptr, inc, loc, step0 = vertex_freedoms(V, H, movable, boundary, step)
     can = np.abs(proj).sum(axis=(1, 2)) > 0
     q = lo.bernstein_minima(V, H, inv3)
