@@ -725,3 +725,25 @@ def test_algorithm_2_as_a_fallback_stops_at_its_seconds(monkeypatch):
     monkeypatch.setattr(driver, "FALLBACK_SECONDS", 60.0)
     r = hs.repair(P, H, time_limit=0.5)
     assert not r.success and seen and seen[-1] and len(seen) < 20  # 100 without a stop
+
+
+def test_a_mesh_without_hexes_is_refused_the_same_way():
+    """The repair of meshes without trilinear hexes (tets here: a 2^3 grid cut into 48) refuses what the hex
+    repair refuses, by name: a tet naming one point twice (was: not certified, without saying why), a tet named
+    twice (was: certified, the copy overlapping its original), every tet in the mirrored node order (was: 48 left
+    invalid in 0.01 s); the grid's own tets are repaired."""
+    from hexsos_plugins.errors import LeftHandedMeshError
+
+    P, H = structured_grid(2)
+    T = np.array([[h[a], h[b], h[c], h[d]] for h in H
+                  for a, b, c, d in [(0, 1, 2, 6), (0, 2, 3, 6), (0, 3, 7, 6), (0, 7, 4, 6), (0, 4, 5, 6), (0, 5, 1, 6)]])
+    none = np.zeros((0, 8), dtype=np.int64)
+    merged = T.copy()
+    merged[5, 3] = merged[5, 2]
+    with pytest.raises(InvalidInputError, match=r"cell 5: point \d+ as its nodes 2 and 3"):
+        hs.repair(P, none, cells=[("tetra", merged)])
+    with pytest.raises(InvalidInputError, match=r"cell 48 those of cell 7"):
+        hs.repair(P, none, cells=[("tetra", np.vstack([T, T[7][::-1]]))])
+    with pytest.raises(LeftHandedMeshError, match="all 48 tetra cells"):
+        hs.repair(P, none, cells=[("tetra", T[:, [0, 2, 1, 3]])])
+    assert hs.repair(P, none, cells=[("tetra", T)]).success

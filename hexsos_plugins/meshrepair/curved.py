@@ -49,6 +49,8 @@ from .curvedcells import (MOVABLE_DOMAINS, VERTICES, CurvedBoundary, Problem, ce
                           coefficient_tables, curved_blocks, curved_boundary, curved_scaled_jacobian,
                           fast_coefficients, kernel_coefficients, needs_curved, node_cells, nodes_of)
 from .result import RepairResult
+from .orientation import refuse_mirrored
+from .topology import refuse_collapsed
 
 __all__ = ["repair_curved", "needs_curved", "curved_blocks", "coefficient_tables", "fast_coefficients",
            "kernel_coefficients", "curved_scaled_jacobian", "CurvedBoundary", "curved_boundary", "Problem",
@@ -99,6 +101,8 @@ def repair_curved(points, cells, *, boundary: str = "slide", min_sj=None, max_it
         blocks.append((name, checked_block(k, name, conn, N).copy()))
     if not any(c.shape[0] for _, c in blocks):
         raise NoCellsError("repair: expected 3-D cells, found none")
+    refuse_collapsed(blocks)  # an edge of no length, a cell twice: never valid, nor a mesh
+    refuse_mirrored(P0, blocks)  # written mirrored throughout: a repair turns it inside out
     if boundary not in ("slide", "fixed", "free"):
         raise InvalidInputError(f"boundary: expected slide, fixed or free, found {boundary!r}")
     maxiter = 300 if max_iter is None else int(max_iter)

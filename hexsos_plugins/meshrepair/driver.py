@@ -609,8 +609,8 @@ def repair(points, hexes, *, cells=None, method: str = "optimize", boundary: str
     H = np.array(H, dtype=np.int64, copy=True)
     N = P0.shape[0]
     others = _validate_cells(cells, N)
-    refuse_collapsed(H, others)  # an edge of no length, a cell twice: no placement of the points makes them valid
-    refuse_mirrored(P0, H, others)  # written mirrored throughout: a repair would turn it inside out
+    refuse_collapsed([("hexahedron", H)] + others)  # an edge of no length, a cell twice: never valid, nor a mesh
+    refuse_mirrored(P0, [("hexahedron", H)] + others)  # written mirrored throughout: a repair turns it inside out
     refuse_folded(P0, H, others)  # folded by its node order: no placement of the points is a mesh
     pin = np.zeros(N, dtype=bool)
     if pinned is not None:

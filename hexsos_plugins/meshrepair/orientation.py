@@ -21,14 +21,14 @@ from ..io.mesh import Mesh
 __all__ = ["refuse_folded", "refuse_mirrored"]
 
 
-def refuse_mirrored(points, hexes, others) -> None:
+def refuse_mirrored(points, blocks) -> None:
     """Raise :class:`~hexsos_plugins.errors.LeftHandedMeshError` when every cell of a type (two at least) of
-    ``hexes`` (M, 8) and ``others`` (a list of (type, conn)) is negative at its centre: those cells are written in
+    ``blocks`` (a list of (type, conn)) is negative at its centre: those cells are written in
     the mirrored node order (as ``hexsos repair`` reads a file, :func:`hexsos_plugins.io.handedness.right_handed`),
     and a repair would turn them inside out (a 3^3 grid so written: 11 s of untangling, the box reflected through
     itself, 2 hexes left invalid). A single cell negative at its centre may be inverted as well as mirrored: it is
     repaired."""
-    blocks = ([("hexahedron", hexes)] if len(hexes) else []) + [(t, c) for t, c in others if len(c)]
+    blocks = [(t, c) for t, c in blocks if len(c)]
     if not blocks:
         return
     mesh = Mesh.from_cells(points, blocks)

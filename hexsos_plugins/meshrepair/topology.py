@@ -61,13 +61,13 @@ def _shown(rows, offset, limit=5):
     return ", ".join(str(int(r) + offset) for r in rows[:limit]) + (", ..." if len(rows) > limit else "")
 
 
-def refuse_collapsed(hexes, others) -> None:
-    """Raise :class:`~hexsos_plugins.errors.InvalidInputError` naming the cells of ``hexes`` (M, 8) and ``others``
-    (a list of (type, conn); cells numbered after the hexes, in their order) that are collapsed
-    (:func:`collapsed_cells`) or repeat another cell's points (:func:`repeated_cells`)."""
-    blocks = [("hexahedron", np.asarray(hexes))] + [(t, np.asarray(c)) for t, c in others]
+def refuse_collapsed(blocks) -> None:
+    """Raise :class:`~hexsos_plugins.errors.InvalidInputError` naming the cells of ``blocks`` (a list of (type,
+    conn); cells numbered across the blocks, in their order) that are collapsed (:func:`collapsed_cells`) or repeat
+    another cell's points (:func:`repeated_cells`)."""
     offset = 0
     for name, conn in blocks:
+        conn = np.asarray(conn)
         bad = np.flatnonzero(collapsed_cells(name, conn))
         if bad.size:
             row = conn[bad[0]]
