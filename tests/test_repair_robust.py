@@ -634,7 +634,7 @@ def test_a_cell_collapsed_by_its_connectivity_or_named_twice_is_refused_by_name_
                                                 r"13; cell 13: point \d+ as its nodes 0 and 1\)"):
         hs.repair(P, merged)
     twice = np.vstack([H, H[4][[4, 5, 6, 7, 0, 1, 2, 3]]])  # hex 4 again, mirrored: the same points
-    with pytest.raises(InvalidInputError, match=r"cells 27; cell 27 those of cell 4"):
+    with pytest.raises(InvalidInputError, match=r"cells 27; cell 27 names those of cell 4"):
         hs.repair(P, twice)
     # in the other cells, numbered after the hexes; a repeated node across a diagonal only is no edge of no length
     tet = np.array([[0, 1, 5, 5]])
@@ -735,14 +735,14 @@ def test_a_mesh_without_hexes_is_refused_the_same_way():
     from hexsos_plugins.errors import LeftHandedMeshError
 
     P, H = structured_grid(2)
-    T = np.array([[h[a], h[b], h[c], h[d]] for h in H
-                  for a, b, c, d in [(0, 1, 2, 6), (0, 2, 3, 6), (0, 3, 7, 6), (0, 7, 4, 6), (0, 4, 5, 6), (0, 5, 1, 6)]])
+    kuhn = [(0, 1, 2, 6), (0, 2, 3, 6), (0, 3, 7, 6), (0, 7, 4, 6), (0, 4, 5, 6), (0, 5, 1, 6)]
+    T = np.array([[h[a], h[b], h[c], h[d]] for h in H for a, b, c, d in kuhn])
     none = np.zeros((0, 8), dtype=np.int64)
     merged = T.copy()
     merged[5, 3] = merged[5, 2]
     with pytest.raises(InvalidInputError, match=r"cell 5: point \d+ as its nodes 2 and 3"):
         hs.repair(P, none, cells=[("tetra", merged)])
-    with pytest.raises(InvalidInputError, match=r"cell 48 those of cell 7"):
+    with pytest.raises(InvalidInputError, match=r"cell 48 names those of cell 7"):
         hs.repair(P, none, cells=[("tetra", np.vstack([T, T[7][::-1]]))])
     with pytest.raises(LeftHandedMeshError, match="all 48 tetra cells"):
         hs.repair(P, none, cells=[("tetra", T[:, [0, 2, 1, 3]])])

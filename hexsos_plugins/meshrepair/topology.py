@@ -1,8 +1,8 @@
 """Cells no placement of the points makes valid, told by their connectivity alone.
 
 A linear cell that names one point at both ends of one of its edges is collapsed: the edge has no length wherever
-the point is, so det J is 0 at its corners there and the cell is never valid (a wedge written as a hexahedron with
-two nodes merged, say). A cell that names the same points as another overlaps it wherever they are. A repair
+the point is, so det J is 0 at its corners there and the cell is never valid (a wedge written as a hexahedron, its
+nodes merged in pairs, say). A cell that names the same points as another overlaps it wherever they are. A repair
 refuses both by name, before it moves anything (as it refuses a mesh folded by its node order,
 :mod:`hexsos_plugins.meshrepair.orientation`): untangling around them could not succeed, and moved the rest of the
 mesh trying (a 3^3 grid with one hex's nodes 0 and 1 merged: the boundary 13.6% of the diagonal from the input's,
@@ -43,8 +43,8 @@ def collapsed_cells(name, conn) -> np.ndarray:
 
 
 def repeated_cells(conn) -> np.ndarray:
-    """(M,) int: for each cell of a block, the index of the first earlier cell with the same set of points, -1
-    where there is none."""
+    """(M,) int: for each cell of a block, the index of the first earlier cell of the block with the same set of
+    points, -1 where there is none (two blocks of one type are read apart)."""
     conn = np.asarray(conn, dtype=np.int64)
     out = np.full(conn.shape[0], -1, dtype=np.int64)
     if conn.shape[0] < 2:
@@ -82,10 +82,10 @@ def refuse_collapsed(blocks) -> None:
         twin = repeated_cells(conn)
         later = np.flatnonzero(twin >= 0)
         if later.size:
-            k = later[0]
+            k, first = int(later[0]) + offset, int(twin[later[0]]) + offset
             raise InvalidInputError(
                 f"{later.size} {name} cell{'s name' if later.size != 1 else ' names'} the same points as an earlier "
-                f"cell (cells {_shown(later, offset)}; cell {int(k) + offset} those of cell {int(twin[k]) + offset}): "
+                f"cell (cells {_shown(later, offset)}; cell {k} names those of cell {first}): "
                 "two cells on the same points overlap wherever the points are, and no repair makes them a mesh. "
                 "Expected each cell once: leave the copies out")
         offset += len(conn)
