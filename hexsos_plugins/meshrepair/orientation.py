@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..cells.elements import CELL_TYPES
 from ..errors import LeftHandedMeshError
 from ..io.mesh import Mesh
 
@@ -22,20 +21,20 @@ __all__ = ["refuse_folded", "refuse_mirrored"]
 
 
 def refuse_mirrored(points, blocks) -> None:
-    """Raise :class:`~hexsos_plugins.errors.LeftHandedMeshError` when every cell of a type (two at least) of
-    ``blocks`` (a list of (type, conn)) is negative at its centre: those cells are written in
-    the mirrored node order (as ``hexsos repair`` reads a file, :func:`hexsos_plugins.io.handedness.right_handed`),
-    and a repair would turn them inside out (a 3^3 grid so written: 11 s of untangling, the box reflected through
-    itself, 2 hexes left invalid). A single cell negative at its centre may be inverted as well as mirrored: it is
-    repaired."""
+    """Raise :class:`~hexsos_plugins.errors.LeftHandedMeshError` when a cell type of ``blocks`` (a list of (type,
+    conn)) with two cells at least is left-handed (:meth:`~hexsos_plugins.io.mesh.Mesh.left_handed_types`: negative
+    at some centres, positive at none): those cells are written in the mirrored node order (as ``hexsos repair``
+    reads a file, :func:`hexsos_plugins.io.handedness.right_handed`), and a repair would turn them inside out (a 3^3
+    grid so written: 11 s of untangling, the box reflected through itself, 2 hexes left invalid). A single cell
+    negative at its centre may be inverted as well as mirrored: it is repaired."""
     blocks = [(t, c) for t, c in blocks if len(c)]
     if not blocks:
         return
     mesh = Mesh.from_cells(points, blocks)
-    det, types = mesh.centre_det(), mesh.cell_types
-    for t, count in mesh.counts_by_type().items():
-        d = det[types == CELL_TYPES.index(t)]
-        if count >= 2 and bool((d < 0).all()):
+    counts = mesh.counts_by_type()
+    for t in mesh.left_handed_types():
+        count = counts[t]
+        if count >= 2:
             raise LeftHandedMeshError(
                 f"all {count} {t} cells are negative at their centres (det J < 0): they are written in the mirrored "
                 "node order, and a repair would turn them inside out. Expected cells positive at their centres: "
