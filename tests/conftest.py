@@ -7,6 +7,7 @@ import tempfile
 # the test helpers (oracle.py) live beside the tests
 sys.path.insert(0, os.path.dirname(__file__))
 
+import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 
 # hexsos records the environments it runs in (for the ParaView plugin loaded by hand) under XDG_CONFIG_HOME:
@@ -26,6 +27,31 @@ def published(name):
     if not os.path.exists(path):
         pytest.skip(f"{path} is absent (published meshes are read in place, never copied)")
     return path
+
+
+def tet_grid(n):
+    """A cube [0, n]^3 cut into n^3 cubes of 6 tetrahedra each (Kuhn), positively oriented."""
+    g = np.arange(n + 1)
+    P = np.stack(np.meshgrid(g, g, g, indexing="ij"), -1).reshape(-1, 3).astype(float)
+    idx = lambda i, j, k: (i * (n + 1) + j) * (n + 1) + k  # noqa: E731
+    T = []
+    paths = [(0, 1, 2), (0, 2, 1), (1, 0, 2), (1, 2, 0), (2, 0, 1), (2, 1, 0)]
+    for i in range(n):
+        for j in range(n):
+            for k in range(n):
+                for p in paths:
+                    v = np.array([i, j, k])
+                    verts = [idx(*v)]
+                    for a in p:
+                        v = v.copy()
+                        v[a] += 1
+                        verts.append(idx(*v))
+                    T.append(verts)
+    T = np.array(T)
+    X = P[T]
+    d = np.einsum("ij,ij->i", X[:, 1] - X[:, 0], np.cross(X[:, 2] - X[:, 0], X[:, 3] - X[:, 0]))
+    T[d < 0] = T[d < 0][:, [0, 2, 1, 3]]
+    return P, T
 
 
 @pytest.fixture

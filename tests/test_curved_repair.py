@@ -15,6 +15,7 @@ import pytest
 import hexsos_plugins as hs
 from hexsos_plugins.cells.elements import ELEMENTS
 from hexsos_plugins.meshrepair import curved as cv
+from conftest import tet_grid
 
 gmsh = pytest.importorskip("gmsh")
 
@@ -118,33 +119,8 @@ def test_gmshs_inverted_curved_shell_is_repaired_certified_on_the_sphere(tmp_pat
     assert dist.max() <= 1e-3 * 2 * np.sqrt(3.0)
 
 
-def _tet_grid(n):
-    """A cube [0, n]^3 cut into n^3 cubes of 6 tetrahedra each (Kuhn), positively oriented."""
-    g = np.arange(n + 1)
-    P = np.stack(np.meshgrid(g, g, g, indexing="ij"), -1).reshape(-1, 3).astype(float)
-    idx = lambda i, j, k: (i * (n + 1) + j) * (n + 1) + k  # noqa: E731
-    T = []
-    paths = [(0, 1, 2), (0, 2, 1), (1, 0, 2), (1, 2, 0), (2, 0, 1), (2, 1, 0)]
-    for i in range(n):
-        for j in range(n):
-            for k in range(n):
-                for p in paths:
-                    v = np.array([i, j, k])
-                    verts = [idx(*v)]
-                    for a in p:
-                        v = v.copy()
-                        v[a] += 1
-                        verts.append(idx(*v))
-                    T.append(verts)
-    T = np.array(T)
-    X = P[T]
-    d = np.einsum("ij,ij->i", X[:, 1] - X[:, 0], np.cross(X[:, 2] - X[:, 0], X[:, 3] - X[:, 0]))
-    T[d < 0] = T[d < 0][:, [0, 2, 1, 3]]
-    return P, T
-
-
 def test_a_linear_tet_mesh_with_inverted_tets_is_repaired_and_certified():
-    P, T = _tet_grid(3)
+    P, T = tet_grid(3)
     P = P.copy()
     inner = np.flatnonzero(np.all((P > 0) & (P < 3), axis=1))
     P[inner[0]] += [1.6, 0.3, 0.2]  # across its neighbours: tets inverted
@@ -163,7 +139,7 @@ def test_a_linear_tet_mesh_with_inverted_tets_is_repaired_and_certified():
 
 
 def test_a_tet_mesh_far_from_unit_size_is_repaired_at_a_power_of_two_scale_and_certified_at_its_own():
-    P, T = _tet_grid(3)
+    P, T = tet_grid(3)
     P = P.astype(np.float64)
     inner = np.flatnonzero(np.all((P > 0) & (P < 3), axis=1))
     P[inner[0]] += [1.6, 0.3, 0.2]
@@ -329,9 +305,10 @@ sys.path.insert(0, "tests")
 import hexsos_plugins.meshrepair.curvedkernels as ck
 ck.load = lambda: None  # lazily compiled: each loop gets the types the curved repair really calls it with
 import hexsos_plugins as hs
-from test_curved_repair import _one_bad_tetra10, _tet_grid
+from conftest import tet_grid
+from test_curved_repair import _one_bad_tetra10
 
-P, T = _tet_grid(3)
+P, T = tet_grid(3)
 P[np.flatnonzero(np.all((P > 0) & (P < 3), axis=1))[0]] += [1.6, 0.3, 0.2]
 assert hs.repair(P, np.zeros((0, 8), dtype=np.int64), cells=[("tetra", T)]).success
 P, T = _one_bad_tetra10()
@@ -375,7 +352,7 @@ def test_the_curved_repairs_clock_starts_after_its_loops_are_loaded(monkeypatch)
         _time.sleep(3.0)
 
     monkeypatch.setattr(ck, "load", slow_load)
-    P, T = _tet_grid(3)
+    P, T = tet_grid(3)
     P[np.flatnonzero(np.all((P > 0) & (P < 3), axis=1))[0]] += [1.6, 0.3, 0.2]
     r = hs.repair(P, np.zeros((0, 8), dtype=np.int64), cells=[("tetra", T)], time_limit=1.0)
     assert r.stats["method"] == "curved" and r.stats["invalid_before"] >= 2

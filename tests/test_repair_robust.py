@@ -732,11 +732,10 @@ def test_a_mesh_without_hexes_is_refused_the_same_way():
     repair refuses, by name: a tet naming one point twice (was: not certified, without saying why), a tet named
     twice (was: certified, the copy overlapping its original), every tet in the mirrored node order (was: 48 left
     invalid in 0.01 s); the grid's own tets are repaired."""
+    from conftest import tet_grid
     from hexsos_plugins.errors import LeftHandedMeshError
 
-    P, H = structured_grid(2)
-    kuhn = [(0, 1, 2, 6), (0, 2, 3, 6), (0, 3, 7, 6), (0, 7, 4, 6), (0, 4, 5, 6), (0, 5, 1, 6)]
-    T = np.array([[h[a], h[b], h[c], h[d]] for h in H for a, b, c, d in kuhn])
+    P, T = tet_grid(2)
     none = np.zeros((0, 8), dtype=np.int64)
     merged = T.copy()
     merged[5, 3] = merged[5, 2]
