@@ -93,7 +93,17 @@ def _out_of_range(d):
 
 
 def _tets_only(d):
+    # two tets sharing a face, and an inverted one on points of its own
     p = os.path.join(d, "tets.vtu")
+    _write(p, np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1], [1, 1, 1], [3, 0, 0], [4, 0, 0], [3, 1, 0],
+                        [3, 0, 1]]),
+           [("tetra", np.array([[0, 1, 2, 3], [1, 2, 3, 4], [5, 7, 6, 8]]))])
+    return p, []
+
+
+def _repeated_mirrored(d):
+    # a tet and its copy in the mirrored node order: the copy is written in the other handedness
+    p = os.path.join(d, "repeated-mirrored.vtu")
     _write(p, np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1], [1, 1, 1]]),
            [("tetra", np.array([[0, 1, 2, 3], [1, 2, 3, 4], [1, 3, 2, 4]]))])
     return p, []
@@ -198,6 +208,14 @@ def _duplicates(d):
     return p, []
 
 
+def _repeated(d):
+    # a hex written again in a second block of hexahedra (as in two physical groups), its nodes turned
+    P, H = structured_grid(2)
+    p = os.path.join(d, "repeated.vtu")
+    _write(p, P, [("hexahedron", H), ("hexahedron", H[3:4][:, [1, 2, 3, 0, 5, 6, 7, 4]])])
+    return p, []
+
+
 def _scaled(scale):
     def make(d):
         P, H = hexes_to_mesh(random_hexes(200, sigma=0.3, seed=7))
@@ -234,6 +252,10 @@ CASES = [
     ("mixed mesh", "hexes with a tet, a pyramid and quads", _mixed, 0, None, {"cells": 10, "hexes": 8, "valid": 10}),
     ("unreferenced points", "points no cell uses (one at 1e30)", _unreferenced, 0, None, {"valid": 8}),
     ("duplicate points", "coinciding points, no node shared", _duplicates, 0, None, {"valid": 8}),
+    ("repeated cell", "a hex written again in a second block, its nodes turned", _repeated, 0, None,
+     {"valid": 9, "repeated_cells": 1}),
+    ("repeated cell, mirrored", "a tet and its copy in the mirrored node order", _repeated_mirrored, 2,
+     "partly mirrored", None),
 ] + [(f"scale {s:g}", "200 random hexes (sigma 0.3), coordinates times this", _scaled(s), 1, None, "same verdicts")
      for s in (1e-6, 1e-3, 1.0, 1e3, 1e6)]
 
@@ -257,6 +279,8 @@ def _outcome(code, err, out):
     parts = [f"{d[k]} {k}" for k in ("valid", "invalid", "undecided") if d[k]]
     if d.get("flat"):
         parts.append(f"({d['flat']} flat)")
+    if d.get("repeated_cells"):
+        parts.append(f"({d['repeated_cells']} named twice)")
     return f"exit {code}: " + ", ".join(parts)
 
 

@@ -621,12 +621,14 @@ def test_a_point_no_cell_uses_is_no_part_of_the_mesh_size():
         assert np.array_equal(r.points[-1], Q[-1]) and np.array_equal(r.points[:-1], ref.points)
 
 
-def test_a_cell_collapsed_by_its_connectivity_or_named_twice_is_refused_by_name_before_anything_moves(tmp_path):
+def test_a_cell_collapsed_by_its_connectivity_is_refused_by_name_before_anything_moves(tmp_path):
     """A hex naming one point as its nodes 0 and 1 has an edge of no length wherever its points are: det J is 0 at
     those corners and no repair makes it valid (repaired, it stayed invalid and the boundary moved 13.6% of the
-    diagonal). A hex named twice overlaps its copy (refused before as folded by its node order, with the advice to
-    flip one copy, which would invert it). Both are refused by name; a hex collapsed in space only (its nodes
-    distinct, two at one point) and two hexes sharing a face are repaired as before."""
+    diagonal): refused by name; a hex collapsed in space only (its nodes distinct, two at one point) is repaired as
+    before. A copy of a hex in the mirrored node order is written in the other handedness than its original and is
+    refused as such, numbered as given (a copy in the same handedness is repaired once: the next test)."""
+    from hexsos_plugins.errors import LeftHandedMeshError
+
     P, H = structured_grid(3)
     merged = H.copy()
     merged[13, 1] = merged[13, 0]
@@ -634,21 +636,24 @@ def test_a_cell_collapsed_by_its_connectivity_or_named_twice_is_refused_by_name_
                                                 r"13; cell 13: point \d+ as its nodes 0 and 1\)"):
         hs.repair(P, merged)
     twice = np.vstack([H, H[4][[4, 5, 6, 7, 0, 1, 2, 3]]])  # hex 4 again, mirrored: the same points
-    with pytest.raises(InvalidInputError, match=r"cells 27; cell 27 names those of cell 4"):
+    with pytest.raises(LeftHandedMeshError, match=r"1 cell is written in the other handedness .*\(cells 27, hexes "):
         hs.repair(P, twice)
     # in the other cells, numbered after the hexes; a repeated node across a diagonal only is no edge of no length
     tet = np.array([[0, 1, 5, 5]])
     with pytest.raises(InvalidInputError, match=r"1 tetra cell names one point .* \(cells 27; cell 27: point 5 as its "
                                                 r"nodes 2 and 3\)"):
         hs.repair(P, H, cells=[("tetra", tet)])
-    from hexsos_plugins.meshrepair.topology import collapsed_cells, repeated_cells
+    from hexsos_plugins.cells.topology import collapsed_cells, repeated_cells
 
     diagonal = H[:1].copy()
     diagonal[0, 6] = diagonal[0, 0]
     assert not collapsed_cells("hexahedron", diagonal).any() and collapsed_cells("hexahedron", merged).tolist() == [
         k == 13 for k in range(27)]
     assert not collapsed_cells("hexahedron27", np.zeros((1, 27), dtype=np.int64)).any()  # not a linear type
-    assert repeated_cells(twice).tolist() == [-1] * 27 + [4] and (repeated_cells(H) == -1).all()
+    assert repeated_cells([("hexahedron", twice)]).tolist() == [-1] * 27 + [4]
+    assert (repeated_cells([("hexahedron", H)]) == -1).all()
+    assert repeated_cells([("hexahedron", H), ("tetra", H[:1, :4]), ("hexahedron", H[[4]][:, ::-1])]).tolist() == [
+        -1] * 28 + [4]  # across blocks of one type, never across types
     # collapsed in space only: repaired and certified, as before
     squashed = P.copy()
     squashed[H[13, 1]] = squashed[H[13, 0]]
@@ -663,6 +668,61 @@ def test_a_cell_collapsed_by_its_connectivity_or_named_twice_is_refused_by_name_
     assert p.returncode == 2 and "Traceback" not in p.stderr and len(p.stderr.strip().splitlines()) == 1
     assert "names one point at both ends of an edge" in p.stderr and not out.exists()
     assert src.read_bytes() == before
+
+
+def test_cells_written_twice_are_repaired_once_and_each_copy_certified(tmp_path):
+    """Gmsh's MSH 2 writes an element once per physical group it is in. A copy on the same points as its original
+    (any node order of the same handedness, in any block of its type) is repaired once: the points are those of
+    the repair without the copies, the certificate covers every cell given (a copy's verdict and minimum its
+    original's), and the report counts the copies. Before, the repair refused such a mesh ("no repair makes them a
+    mesh"), and the repair of tets read every face of a copied volume as inside and had no boundary (a traceback)."""
+    import gmsh
+
+    from conftest import tet_grid
+
+    P, H = structured_grid(4)
+    inner = np.flatnonzero(((P > 0) & (P < 1)).all(axis=1))
+    Q = P.copy()
+    Q[inner[5]] += 0.3  # 7 hexes not valid
+    once = hs.repair(Q, H, jobs=0)
+    twice = hs.repair(Q, np.vstack([H, H[[7]][:, [1, 2, 3, 0, 5, 6, 7, 4]], H[[20]]]), jobs=0)
+    assert once.success and twice.success and np.array_equal(once.points, twice.points)
+    assert len(twice.check) == 66 and (twice.check.status == 1).all() and twice.stats["repeated_cells"] == 2
+    assert twice.check.min_det[64] == twice.check.min_det[7] and twice.check.min_det[65] == twice.check.min_det[20]
+    assert twice.check.repeated_cells[64:].tolist() == [7, 20] and "2 cells written twice" in twice.message
+    # tets (the repair of hex-free meshes), the copies in a second block, nodes turned
+    Pt, T = tet_grid(3)
+    Pt[(1 * 4 + 1) * 4 + 1] += (1.3, 0.2, 0.1)  # the interior point (1, 1, 1) through its neighbours
+    alone = hs.repair(Pt, None, cells=[("tetra", T)], jobs=0)
+    both = hs.repair(Pt, None, cells=[("tetra", T), ("tetra", T[:, [1, 2, 0, 3]])], jobs=0)
+    assert alone.stats["invalid_before"] > 0 and alone.success and both.success
+    assert np.array_equal(alone.points, both.points) and len(both.check) == 2 * len(T)
+    assert np.array_equal(both.check.status[len(T):], both.check.status[:len(T)])
+    assert len(both.extra["curved_scaled_jacobian"]) == 2 * len(T) and both.stats["repeated_cells"] == len(T)
+    # the command line on Gmsh's own MSH 2 of a box in two physical volumes: every cell written back, certified
+    src, out = tmp_path / "two.msh", tmp_path / "out.msh"
+    gmsh.initialize()
+    try:
+        gmsh.option.setNumber("General.Terminal", 0)
+        gmsh.model.occ.addBox(0, 0, 0, 1, 1, 1)
+        gmsh.model.occ.synchronize()
+        gmsh.model.addPhysicalGroup(3, [1], 1)
+        gmsh.model.addPhysicalGroup(3, [1], 2)
+        gmsh.option.setNumber("Mesh.MeshSizeMax", 0.5)
+        gmsh.model.mesh.generate(3)
+        gmsh.option.setNumber("Mesh.MshFileVersion", 2.2)
+        gmsh.write(str(src))
+    finally:
+        gmsh.finalize()
+    before = src.read_bytes()
+    cells_in = sum(len(b.data) for b in meshio.read(src).cells if b.type == "tetra")
+    p = subprocess.run([sys.executable, "-m", "hexsos_plugins", "repair", str(src), "-o", str(out)],
+                       capture_output=True, text=True, timeout=300)
+    assert p.returncode == 0, p.stderr
+    assert f"{cells_in // 2} cells written twice" in p.stdout and src.read_bytes() == before
+    written = meshio.read(out)
+    status = np.concatenate([d for b, d in zip(written.cells, written.cell_data["hexsos_status"]) if b.type == "tetra"])
+    assert status.size == cells_in and (status == 1).all()
 
 
 def test_a_type_written_mirrored_throughout_is_refused_and_a_lone_inverted_hex_repaired():
@@ -729,9 +789,9 @@ def test_algorithm_2_as_a_fallback_stops_at_its_seconds(monkeypatch):
 
 def test_a_mesh_without_hexes_is_refused_the_same_way():
     """The repair of meshes without trilinear hexes (tets here: a 2^3 grid cut into 48) refuses what the hex
-    repair refuses, by name: a tet naming one point twice (was: not certified, without saying why), a tet named
-    twice (was: certified, the copy overlapping its original), every tet in the mirrored node order (was: 48 left
-    invalid in 0.01 s); the grid's own tets are repaired."""
+    repair refuses, by name: a tet naming one point twice (was: not certified, without saying why), every tet in
+    the mirrored node order (was: 48 left invalid in 0.01 s); the grid's own tets are repaired, and with a tet
+    written twice too (repaired once, both certified)."""
     from conftest import tet_grid
     from hexsos_plugins.errors import LeftHandedMeshError
 
@@ -741,8 +801,8 @@ def test_a_mesh_without_hexes_is_refused_the_same_way():
     merged[5, 3] = merged[5, 2]
     with pytest.raises(InvalidInputError, match=r"cell 5: point \d+ as its nodes 2 and 3"):
         hs.repair(P, none, cells=[("tetra", merged)])
-    with pytest.raises(InvalidInputError, match=r"cell 48 names those of cell 7"):
-        hs.repair(P, none, cells=[("tetra", np.vstack([T, T[7][::-1]]))])
+    r = hs.repair(P, none, cells=[("tetra", np.vstack([T, T[7][::-1]]))])
+    assert r.success and len(r.check) == 49 and r.stats["repeated_cells"] == 1 and r.check.repeated_cells[48] == 7
     with pytest.raises(LeftHandedMeshError, match="all 48 tetra cells"):
         hs.repair(P, none, cells=[("tetra", T[:, [0, 2, 1, 3]])])
     assert hs.repair(P, none, cells=[("tetra", T)]).success

@@ -39,6 +39,34 @@ def test_case_outcome(case, tmp_path):
             assert d[k] == v, (k, d)
 
 
+def test_check_names_a_cell_written_twice_in_any_block_and_node_order(monkeypatch):
+    """A cell on the same points as an earlier one of its type (another block, another node order) is valid on its
+    own but counted twice by a solver: ``check`` names it in its summary and its JSON, whatever the path (at once, in
+    a thread beside the kernel, every hash equal so that each cell is compared point by point); a mesh without one
+    says nothing, and a tet on four of a hex's points is no copy of it."""
+    from hexsos_plugins.cells import topology
+    from hexsos_plugins.certify import pipeline
+    from hexsos_plugins.examples import structured_grid
+
+    P, H = structured_grid(3)
+    blocks = [("hexahedron", H[:20]), ("tetra", H[:2, [0, 1, 3, 4]]),
+              ("hexahedron", np.vstack([H[20:], H[[5]][:, [1, 2, 3, 0, 5, 6, 7, 4]], H[[2]]]))]
+    plain = hs.check(P, [("hexahedron", H), ("tetra", H[:2, [0, 1, 3, 4]])])
+    assert "repeated" not in plain.summary() and plain.to_dict()["repeated_cells"] == 0
+    assert (plain.repeated_cells == -1).all()
+    for beside, same_hash in ((10**9, False), (0, False), (10**9, True)):
+        monkeypatch.setattr(pipeline, "TWINS_BESIDE", beside)
+        if same_hash:
+            monkeypatch.setattr(topology, "_hashes", lambda conn: np.zeros(conn.shape[0], dtype=np.uint64))
+        r = hs.check(P, blocks)
+        twin = r.repeated_cells
+        # numbered across the blocks: the 20 hexes, the 2 tets, then 7 hexes and the two copies (29 and 30)
+        assert twin[29] == 5 and twin[30] == 2 and (np.delete(twin, [29, 30]) == -1).all()
+        assert r.to_dict()["repeated_cells"] == 2 and (r.status == 1).all()
+        assert ("repeated   2 cells name the same points as an earlier cell (cells 29, 30; cell 29 names those of "
+                "cell 5)") in r.summary()
+
+
 def test_scales_give_the_same_verdicts(tmp_path):
     import json
 
@@ -55,7 +83,8 @@ def test_scales_give_the_same_verdicts(tmp_path):
         assert np.allclose(r.min_det, ref.min_det * s**3, rtol=1e-9, atol=1e-12 * s**3)
 
 
-@pytest.mark.parametrize("case", [c for c in CASES if c[3] == 2 and c[0] not in ("left-handed file", "mirrored block")],
+@pytest.mark.parametrize("case", [c for c in CASES if c[3] == 2 and c[0] not in ("left-handed file", "mirrored block",
+                                                                                 "repeated cell, mirrored")],
                          ids=lambda c: c[0])
 def test_api_raises_typed_errors(case, tmp_path):
     path, _ = case[2](str(tmp_path))

@@ -26,6 +26,7 @@ smallest subnormal), ``lower_bound`` the largest float below the proven bound (p
 
 from __future__ import annotations
 
+import threading
 import time
 from contextlib import nullcontext
 from dataclasses import dataclass, field
@@ -33,6 +34,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..cells.elements import CELL_TYPES, ELEMENTS, VOXEL_TO_VTK
+from ..cells.topology import repeated_cells, repeated_words
 from ..errors import InvalidInputError, NoHexahedraError
 from ..kernel.calls import run_outputs
 from ..kernel.pool import threads_for
@@ -51,6 +53,9 @@ SOS_STATUS_NAMES = ("", "Solved", "AlmostSolved", "MaxIterations", "MaxTime", "N
                     "AlmostDualInfeasible", "CallbackTerminated", "Unsolved", "other")
 #: The hexahedral cell types (``CheckResult.to_dict()["hexes"]`` counts them).
 HEX_TYPES = ("hexahedron", "hexahedron20", "hexahedron27")
+
+#: From this many cells on, :func:`check` reads the cells written twice in a thread beside the kernel's work
+TWINS_BESIDE = 50_000
 
 _SLICE = 65536  # cells per kernel call (progress between calls; the kernel itself works in chunks of 512)
 
@@ -140,6 +145,13 @@ class CheckResult:
         return (self.status == 0) & (self.corner_min_det > 0)
 
     @property
+    def repeated_cells(self) -> np.ndarray:
+        """(M,) int: for each cell, the first earlier cell of its type on the same set of points, -1 where there
+        is none (:func:`hexsos_plugins.cells.topology.repeated_cells`; ``extra["repeated_cells"]`` where any)."""
+        twin = self.extra.get("repeated_cells")
+        return np.full(len(self), -1, dtype=np.int64) if twin is None else twin
+
+    @property
     def worst(self) -> int:
         """Index of the cell with the smallest min_det (-1 for an empty result)."""
         if len(self) == 0:
@@ -199,6 +211,7 @@ class CheckResult:
             "sos_solves": int(self.sos_solves),
             "unrepresentable": int(self.unrepresentable.sum()),
             "by_type": self.by_type(),
+            "repeated_cells": int((self.repeated_cells >= 0).sum()),
         })
         q = self.quality()
         if q is not None:
@@ -267,6 +280,9 @@ class CheckResult:
         line = self.quality_line()
         if line:
             lines.append(line)
+        said = repeated_words(self.repeated_cells)
+        if said:
+            lines.append(f"repeated   {said}: each copy is checked, but a solver would count the cell twice")
         return "\n".join(lines)
 
     def quality_line(self) -> str:
@@ -735,6 +751,22 @@ def check(points, cells=None, *, method: str = "auto", relaxation: str = "quad2"
     not_checked = cell_pairs(cells)[1]
     P, blocks = validate_cells(points, cells)
     t0 = time.perf_counter()
+    # the cells written twice: on a large mesh read beside the kernel's work (numpy lets go of Python's lock while
+    # it sorts), on a small one at once (a thread's start costs more there than the reading)
+    twins = {}
+
+    def read_twins():
+        try:
+            twins["cells"] = repeated_cells(blocks)
+        except BaseException as exc:  # raised where the check waits for it
+            twins["error"] = exc
+
+    side = None
+    if sum(conn.shape[0] for _, conn in blocks) >= TWINS_BESIDE:
+        side = threading.Thread(target=read_twins, name="hexsos-repeated-cells", daemon=True)
+        side.start()
+    else:
+        read_twins()
     opts = _Options(method, relaxation, float(rtol), float(flat_rtol), int(max_depth), int(max_boxes), float(sos_tol),
                     int(sos_max_iter), int(exact_boxes))
     total = sum(b.shape[0] for _, b in blocks)
@@ -775,6 +807,12 @@ def check(points, cells=None, *, method: str = "auto", relaxation: str = "quad2"
                 done += len(part)
                 if progress is not None:
                     progress(done, total)
+    if side is not None:
+        side.join()
+    if "error" in twins:
+        raise twins["error"]
+    if (twins["cells"] >= 0).any():
+        result.extra["repeated_cells"] = twins["cells"]
     result.seconds = time.perf_counter() - t0
     if quality:
         with threads_for(jobs):

@@ -64,6 +64,7 @@ import meshio
 import numpy as np
 
 from ..cells.elements import CELL_TYPES, ELEMENTS, HEX_FACES, VOXEL_TO_VTK
+from ..cells.topology import repeated_cells
 from ..cells.inputs import CHECKABLE, is_3d  # noqa: F401 (re-exported: io.mesh.CHECKABLE, io.mesh.is_3d)
 from ..errors import InvalidInputError, NoCellsError, NoHexahedraError  # noqa: F401 (NoHexahedraError re-exported)
 
@@ -617,7 +618,7 @@ class Mesh:
                 larger_named = np.zeros(int(max(same.max(), other.max())) + 1, dtype=bool)
                 larger_named[part[out[cell] & (same != other) & ~smaller]] = True
                 out[cell] |= smaller & ~larger_named[part]
-        return out
+        return self._as_originals(out, d)
 
     def _sign_mirrored(self, d):
         """:meth:`mirrored_cells` by the signs of ``d`` (the centres' det J, some negative) alone."""
@@ -654,7 +655,24 @@ class Mesh:
         cell, same, other = self._handedness_classes()
         if len(cell):
             out[cell] = _smaller_class(same, other, strict=strict)
-        return out
+        return self._as_originals(out)
+
+    def copies(self) -> np.ndarray:
+        """(n_cells,) int: for each cell, the first earlier cell of its type on the same points, -1 where there is
+        none (:func:`hexsos_plugins.cells.topology.repeated_cells`; blocks of a type read together): Gmsh's MSH 2
+        writes an element once per physical group it is in. The faces between cells see each cell once."""
+        return repeated_cells(self.cells)
+
+    def _as_originals(self, marked, det=None):
+        """``marked`` with each copy (:meth:`copies`) marked as its original, or the other way where its node order
+        mirrors the original's (det J at the centres, ``det``, of opposite signs): the faces left the copies out."""
+        twin = self.copies()
+        later = np.flatnonzero(twin >= 0)
+        if later.size:
+            d = self.centre_det() if det is None else det
+            first = twin[later]
+            marked[later] = marked[first] ^ (np.sign(d[later]) * np.sign(d[first]) < 0)
+        return marked
 
     def _handedness_classes(self, near=None):
         """(cells, same, other): the cells that share a corner face with another (only the faces whose nodes are
@@ -819,8 +837,12 @@ class Mesh:
         bool, only the faces whose nodes are all ``near``."""
         parts = {3: [], 4: []}
         start = 0
+        once = self.copies() < 0  # a cell written twice (a copy on the same points) has its faces read once
         for _, t, conn in self._blocks:
             ids = np.arange(start, start + len(conn), dtype=np.int64)
+            mine = once[start:start + len(conn)]
+            if not mine.all():
+                conn, ids = conn[mine], ids[mine]
             for k in (3, 4):
                 fs = [f for f in ELEMENTS[t].faces if len(f) == k]
                 if not fs:
@@ -833,7 +855,7 @@ class Mesh:
                     keep = near[faces].all(axis=1)
                     faces, owner = faces[keep], owner[keep]
                 parts[k].append((faces, owner))
-            start += len(conn)
+            start += len(mine)
         return {k: (np.concatenate([p[0] for p in ps]), np.concatenate([p[1] for p in ps])) if ps else
                 (np.zeros((0, k), dtype=np.int64), np.zeros(0, dtype=np.int64)) for k, ps in parts.items()}
 

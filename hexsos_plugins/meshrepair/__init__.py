@@ -8,8 +8,8 @@ type (:mod:`.result`), the repair of meshes far from unit size at a power-of-two
 to the input (:mod:`.fidelity`), the BLAS thread cap (:mod:`.blas`), and the repair of curved and hex-free
 meshes on det J's Bernstein coefficients (:mod:`.curved`, its compiled loops :mod:`.curvedkernels`, what it and the
 skeleton stand on :mod:`.curvedcells`: coefficients, curved boundary, the problem; the untangling of their folded
-straight-sided skeleton first :mod:`.skeleton`), and the refusal of a mesh folded over
-itself by its node order (:mod:`.orientation`).
+straight-sided skeleton first :mod:`.skeleton`), the refusal of a mesh folded over
+itself by its node order (:mod:`.orientation`), and the repair of cells written twice once (:mod:`.copies`).
 
 May import: the certify, kernel and cells wings, :class:`hexsos_plugins.io.mesh` helpers (mesh topology) and
 :mod:`hexsos_plugins.errors`. Never the command line or the doors: they call :func:`repair`.

@@ -50,7 +50,8 @@ from .curvedcells import (MOVABLE_DOMAINS, VERTICES, CurvedBoundary, Problem, ce
                           fast_coefficients, kernel_coefficients, needs_curved, node_cells, nodes_of)
 from .result import RepairResult
 from .orientation import refuse_mirrored
-from .topology import refuse_collapsed
+from ..cells.topology import refuse_collapsed
+from .copies import originals, restore, written_twice
 
 __all__ = ["repair_curved", "needs_curved", "curved_blocks", "coefficient_tables", "fast_coefficients",
            "kernel_coefficients", "curved_scaled_jacobian", "CurvedBoundary", "curved_boundary", "Problem",
@@ -101,8 +102,14 @@ def repair_curved(points, cells, *, boundary: str = "slide", min_sj=None, max_it
         blocks.append((name, checked_block(k, name, conn, N).copy()))
     if not any(c.shape[0] for _, c in blocks):
         raise NoCellsError("repair: expected 3-D cells, found none")
-    refuse_collapsed(blocks)  # an edge of no length, a cell twice: never valid, nor a mesh
+    refuse_collapsed(blocks)  # an edge of no length: never valid
     refuse_mirrored(P0, blocks)  # written mirrored throughout: a repair turns it inside out
+    twin = written_twice(blocks)
+    if twin is not None:  # cells written twice (Gmsh's MSH 2, an element in two physical groups): repaired once
+        res = repair_curved(P0, originals(blocks, twin), boundary=boundary, min_sj=min_sj, max_iter=max_iter,
+                            time_limit=time_limit, feature_angle=feature_angle, rings=rings, pinned=pinned,
+                            progress=progress, callback=callback, jobs=jobs, scheduler=scheduler)
+        return restore(res, twin, 0)
     if boundary not in ("slide", "fixed", "free"):
         raise InvalidInputError(f"boundary: expected slide, fixed or free, found {boundary!r}")
     maxiter = 300 if max_iter is None else int(max_iter)
