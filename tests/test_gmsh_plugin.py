@@ -1067,3 +1067,24 @@ def test_panel_labels_fit_and_the_method_comes_before_the_papers_parameters(tmp_
                     panel.P_PIN, panel.P_MAX_ITER, panel.P_FIX, panel.P_RHO, panel.P_MARGIN])
     assert order[0] == panel.P_METHOD and order[2] == panel.P_REPAIR_METHOD and order[-2:] == [panel.P_RHO,
                                                                                               panel.P_MARGIN]
+
+
+def test_a_model_read_from_msh2_with_every_element_twice_is_checked_and_repaired_once(session, tmp_path):
+    """A box in two physical volumes saved as MSH 2 has every tet written twice, and Gmsh opens it so: the panel's
+    check names the copies in its summary (each valid, as its original), and its repair certifies every element
+    (it refused the model before: "no repair makes them a mesh")."""
+    gmsh.model.occ.addBox(0, 0, 0, 1, 1, 1)
+    gmsh.model.occ.synchronize()
+    gmsh.model.addPhysicalGroup(3, [1], 1)
+    gmsh.model.addPhysicalGroup(3, [1], 2)
+    gmsh.option.setNumber("Mesh.MeshSizeMax", 0.5)
+    gmsh.model.mesh.generate(3)
+    gmsh.option.setNumber("Mesh.MshFileVersion", 2.2)
+    gmsh.write(str(tmp_path / "two.msh"))
+    gmsh.clear()
+    gmsh.open(str(tmp_path / "two.msh"))
+    n = sum(len(t) for t in gmsh.model.mesh.getElements(3)[1])
+    r = gm.check_model(post_views=False)
+    assert len(r) == n and (r.status == 1).all() and f"repeated   {n // 2} cells name the same points" in r.summary()
+    res = gm.repair_model()
+    assert res.success and len(res.check) == n and res.stats["repeated_cells"] == n // 2

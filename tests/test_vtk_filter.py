@@ -776,3 +776,15 @@ def test_safe_step_filter_in_plain_vtk():
     f.SetDisplacement("nope")
     assert not f.Update()
     assert "'nope'" in f.GetLastMessage() and f.GetOutputDataObject(0).GetNumberOfCells() == 0
+
+
+def test_a_cell_written_twice_is_named_in_the_summary_and_both_copies_checked():
+    """A hex written again (as a Gmsh MSH 2 file of a volume in two physical groups has every cell twice): both
+    copies are checked and valid, and the summary names the copy; without it the summary says nothing of copies."""
+    P, H = structured_grid(2)
+    out = run_check(make_grid(P, [(HEX, h) for h in H] + [(HEX, H[3][[1, 2, 3, 0, 5, 6, 7, 4]])])).GetOutputDataObject(0)
+    assert cell_array(out, "hexsos_status").tolist() == [1] * 9
+    summary = out.GetFieldData().GetAbstractArray("hexsos_summary").GetValue(0)
+    assert "1 cell names the same points as an earlier cell (cells 8; cell 8 names those of cell 3)" in summary
+    plain = run_check(make_grid(P, [(HEX, h) for h in H])).GetOutputDataObject(0)
+    assert "repeated" not in plain.GetFieldData().GetAbstractArray("hexsos_summary").GetValue(0)

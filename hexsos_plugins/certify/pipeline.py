@@ -54,7 +54,8 @@ SOS_STATUS_NAMES = ("", "Solved", "AlmostSolved", "MaxIterations", "MaxTime", "N
 #: The hexahedral cell types (``CheckResult.to_dict()["hexes"]`` counts them).
 HEX_TYPES = ("hexahedron", "hexahedron20", "hexahedron27")
 
-#: From this many cells on, :func:`check` reads the cells written twice in a thread beside the kernel's work
+#: From this many cells on, :func:`check` reads the cells written twice in a thread beside the kernel's work (where
+#: the kernel runs on one thread or in other processes)
 TWINS_BESIDE = 50_000
 
 _SLICE = 65536  # cells per kernel call (progress between calls; the kernel itself works in chunks of 512)
@@ -751,8 +752,9 @@ def check(points, cells=None, *, method: str = "auto", relaxation: str = "quad2"
     not_checked = cell_pairs(cells)[1]
     P, blocks = validate_cells(points, cells)
     t0 = time.perf_counter()
-    # the cells written twice: on a large mesh read beside the kernel's work (numpy lets go of Python's lock while
-    # it sorts), on a small one at once (a thread's start costs more there than the reading)
+    # the cells written twice: on a large mesh read beside the kernel's work where the kernel leaves a core to it
+    # (one thread here, or the work in other processes), else at once: a thread's start costs more than the reading
+    # of a small mesh, and beside the kernel's threads on every core it slowed them more than it took
     twins = {}
 
     def read_twins():
@@ -762,7 +764,8 @@ def check(points, cells=None, *, method: str = "auto", relaxation: str = "quad2"
             twins["error"] = exc
 
     side = None
-    if sum(conn.shape[0] for _, conn in blocks) >= TWINS_BESIDE:
+    spare = jobs == 1 or processes != 1 or scheduler is not None or executor is not None
+    if spare and sum(conn.shape[0] for _, conn in blocks) >= TWINS_BESIDE:
         side = threading.Thread(target=read_twins, name="hexsos-repeated-cells", daemon=True)
         side.start()
     else:

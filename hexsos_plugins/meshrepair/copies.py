@@ -78,7 +78,8 @@ def restore(res, twin, hexes_given, other_cells=None):
     n = int((twin >= 0).sum())
     res.stats["repeated_cells"] = n
     res.stats["success"] = res.success
-    res.message = (f"{res.message} ({n} cell{'s' if n != 1 else ''} written twice, on the same points as an "
-                   "earlier one: repaired once, each copy's certificate its original's)")
+    said = (f"{n} cell{'s' if n != 1 else ''} written twice, on the same points as an earlier one: repaired once, "
+            "each copy's certificate its original's")
+    res.message = f"{res.message} ({said})" if res.message else said
     res.stats["message"] = res.message
     return res
