@@ -363,9 +363,11 @@ def joint_steps(V, H, movable, *, boundary=None, deadline=None, target=None, ban
             info["splits"] += 1
         least = [float(cell_sj[hx].min()) for _, hx in groups]
         lead = int(np.argmin(least))
-        programs = [_program(V, H, verts, hx, lg, fixed, off, ref, delta, boundary)
-                    for (verts, hx), lg in zip(groups, least)]
-        results = run_all([partial(_solve, p, deadline) for p in programs])
+        # each group's program built where it is solved: the building (Python, holding the interpreter's lock)
+        # of one overlaps the solving (HiGHS, letting go of it) of another
+        built = run_all([partial(_built_and_solved, (V, H, verts, hx, lg, fixed, off, ref, delta, boundary), deadline)
+                         for (verts, hx), lg in zip(groups, least)])
+        programs, results = [p for p, _ in built], [r for _, r in built]
         info["tries"] += 1
         info["programs"] += len(programs)
         parts = _take_steps(V, H, programs, [r.x if r.status == 0 else None for r in results], fixed, cell_sj, ref,
@@ -470,6 +472,12 @@ def _program(V, H, verts, hx, m, fixed, off, ref, delta, boundary):
     cost[-1] = -1.0
     return {"verts": verts, "hx": hx, "m": m, "bvs": bvs, "lim": lim, "A": Aub, "b": b_ub, "bounds": bounds,
             "cost": cost}
+
+
+def _built_and_solved(args, deadline):
+    """(program, HiGHS's result): :func:`_program` of ``args``, then :func:`_solve`."""
+    p = _program(*args)
+    return p, _solve(p, deadline)
 
 
 def _solve(p, deadline):
