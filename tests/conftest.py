@@ -54,6 +54,19 @@ def tet_grid(n):
     return P, T
 
 
+def write_box_in_two_groups(gmsh, path):
+    """Mesh a unit box into tets in the open Gmsh session, its volume in two physical groups, and save it as MSH 2.2
+    at ``path``: Gmsh writes every element once per group, so the file holds each tet twice."""
+    gmsh.model.occ.addBox(0, 0, 0, 1, 1, 1)
+    gmsh.model.occ.synchronize()
+    gmsh.model.addPhysicalGroup(3, [1], 1)
+    gmsh.model.addPhysicalGroup(3, [1], 2)
+    gmsh.option.setNumber("Mesh.MeshSizeMax", 0.5)
+    gmsh.model.mesh.generate(3)
+    gmsh.option.setNumber("Mesh.MshFileVersion", 2.2)
+    gmsh.write(str(path))
+
+
 @pytest.fixture
 def bunny_path():
     if not os.path.exists(BUNNY):

@@ -1073,14 +1073,9 @@ def test_a_model_read_from_msh2_with_every_element_twice_is_checked_and_repaired
     """A box in two physical volumes saved as MSH 2 has every tet written twice, and Gmsh opens it so: the panel's
     check names the copies in its summary (each valid, as its original), and its repair certifies every element
     (it refused the model before: "no repair makes them a mesh")."""
-    gmsh.model.occ.addBox(0, 0, 0, 1, 1, 1)
-    gmsh.model.occ.synchronize()
-    gmsh.model.addPhysicalGroup(3, [1], 1)
-    gmsh.model.addPhysicalGroup(3, [1], 2)
-    gmsh.option.setNumber("Mesh.MeshSizeMax", 0.5)
-    gmsh.model.mesh.generate(3)
-    gmsh.option.setNumber("Mesh.MshFileVersion", 2.2)
-    gmsh.write(str(tmp_path / "two.msh"))
+    from conftest import write_box_in_two_groups
+
+    write_box_in_two_groups(gmsh, tmp_path / "two.msh")
     gmsh.clear()
     gmsh.open(str(tmp_path / "two.msh"))
     n = sum(len(t) for t in gmsh.model.mesh.getElements(3)[1])

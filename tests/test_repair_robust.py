@@ -678,7 +678,7 @@ def test_cells_written_twice_are_repaired_once_and_each_copy_certified(tmp_path)
     mesh"), and the repair of tets read every face of a copied volume as inside and had no boundary (a traceback)."""
     import gmsh
 
-    from conftest import tet_grid
+    from conftest import tet_grid, write_box_in_two_groups
 
     P, H = structured_grid(4)
     inner = np.flatnonzero(((P > 0) & (P < 1)).all(axis=1))
@@ -704,14 +704,7 @@ def test_cells_written_twice_are_repaired_once_and_each_copy_certified(tmp_path)
     gmsh.initialize()
     try:
         gmsh.option.setNumber("General.Terminal", 0)
-        gmsh.model.occ.addBox(0, 0, 0, 1, 1, 1)
-        gmsh.model.occ.synchronize()
-        gmsh.model.addPhysicalGroup(3, [1], 1)
-        gmsh.model.addPhysicalGroup(3, [1], 2)
-        gmsh.option.setNumber("Mesh.MeshSizeMax", 0.5)
-        gmsh.model.mesh.generate(3)
-        gmsh.option.setNumber("Mesh.MshFileVersion", 2.2)
-        gmsh.write(str(src))
+        write_box_in_two_groups(gmsh, src)
     finally:
         gmsh.finalize()
     before = src.read_bytes()
