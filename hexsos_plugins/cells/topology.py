@@ -25,9 +25,6 @@ __all__ = ["refuse_collapsed", "collapsed_cells", "repeated_cells", "repeated_wo
 
 #: The cell types whose every node is a corner: a repeated node on an edge makes det J 0 there
 LINEAR = ("hexahedron", "tetra", "wedge", "pyramid")
-#: A cell's hash is the sum of the squares of its points' numbers (as unsigned 64-bit integers, wrapping), whatever
-#: their order: one pass over the connectivity. Cells of equal hashes are compared point by point, so any hash is
-#: exact (a test makes every hash equal); a grid's numbering gives every cell its own.
 
 
 def edges(name):
@@ -51,8 +48,12 @@ def collapsed_cells(name, conn) -> np.ndarray:
 
 
 def _hashes(conn):
-    """(M,) uint64: the hash of each cell's set of points, whatever their order."""
-    return np.einsum("ij,ij->i", conn, conn).view(np.uint64)
+    """(M,) uint64: the hash of each cell's set of points (``conn`` (M, k) int64, not negative), whatever their
+    order: the sum of the squares of its point numbers as unsigned 64-bit integers (wrapping), one pass over the
+    connectivity. Cells of equal hashes are compared point by point, so any hash is exact (a test makes every hash
+    equal); a grid's numbering gives every cell its own."""
+    u = conn.view(np.uint64)
+    return np.einsum("ij,ij->i", u, u)
 
 
 def repeated_cells(blocks) -> np.ndarray:
