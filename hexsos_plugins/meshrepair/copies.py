@@ -19,15 +19,8 @@ __all__ = ["written_twice", "originals", "restore"]
 
 
 def written_twice(blocks):
-    """``repeated_cells(blocks)`` (each cell's first earlier cell of its type on the same points, -1: none), or
-    None where no cell is written twice or the blocks are not integer arrays of one row per cell (the repair's
-    validation then says what it expected)."""
-    try:
-        blocks = [(name, np.asarray(conn)) for name, conn in blocks]
-    except (TypeError, ValueError):
-        return None
-    if any(conn.ndim != 2 or conn.dtype.kind not in "iu" for _, conn in blocks):
-        return None
+    """``repeated_cells(blocks)`` (validated blocks; each cell's first earlier cell of its type on the same points,
+    -1: none), or None where no cell is written twice."""
     twin = repeated_cells(blocks)
     return twin if (twin >= 0).any() else None
 

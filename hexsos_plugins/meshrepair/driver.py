@@ -609,9 +609,6 @@ def repair(points, hexes, *, cells=None, method: str = "optimize", boundary: str
         return repair_curved(points, curved_blocks(hexes, cells), boundary=boundary, min_sj=min_sj, max_iter=max_iter,
                              time_limit=time_limit, feature_angle=feature_angle, rings=rings, pinned=pinned,
                              progress=progress, callback=callback, jobs=jobs, scheduler=scheduler)
-    twin = _copies(hexes, cells)
-    if twin is not None:  # cells written twice (Gmsh's MSH 2, an element in two physical groups): repaired once
-        return _repair_once(args, twin)
     P0, H = validate_arrays(points, hexes)
     P0 = np.array(P0, dtype=np.float64, copy=True)
     # a private, writable copy: a read-only view of the caller's array (as :func:`hexsos_plugins.io.read` gives) is
@@ -622,6 +619,11 @@ def repair(points, hexes, *, cells=None, method: str = "optimize", boundary: str
     refuse_collapsed([("hexahedron", H)] + others)  # an edge of no length: never valid
     refuse_mirrored(P0, [("hexahedron", H)] + others)  # written mirrored throughout: a repair turns it inside out
     refuse_folded(P0, H, others)  # folded by its node order: no placement of the points is a mesh
+    twin = written_twice([("hexahedron", H)] + others)
+    if twin is not None:  # cells written twice (Gmsh's MSH 2, an element in two physical groups): repaired once
+        kept = originals([("hexahedron", H)] + others, twin)
+        res = repair(**dict(args, hexes=kept[0][1], cells=kept[1:] or None))
+        return restore(res, twin, H.shape[0], check_cells(res.points, others) if others else None)
     pin = np.zeros(N, dtype=bool)
     if pinned is not None:
         pm = np.asarray(pinned, dtype=bool)
@@ -650,39 +652,6 @@ def repair(points, hexes, *, cells=None, method: str = "optimize", boundary: str
     with single_thread(), threads_for(jobs):  # jobs: the kernel's threads, and those of stage 1's large blocks
         first = run()
         return _leashed_again(first, first.run(), run)
-
-
-def _copies(hexes, cells):
-    """:func:`.copies.written_twice` of the hexes and other cells :func:`repair` was given, or None (none written
-    twice, or cells its validation refuses: it says what it expected)."""
-    if hexes is not None:
-        try:
-            shape = np.shape(hexes)
-        except (TypeError, ValueError):
-            return None
-        if len(shape) != 2 or (shape[0] and shape[1] != 8):
-            return None
-    try:
-        blocks = [("hexahedron", hexes if hexes is not None else np.zeros((0, 8), dtype=np.int64))] + [
-            (name, conn) for name, conn in (cells or [])]
-    except (TypeError, ValueError):
-        return None
-    return written_twice(blocks)
-
-
-def _repair_once(args, twin):
-    """:func:`repair` (its arguments ``args``) of hexes and other cells some of which are written twice
-    (``twin``): refused, if it is to be, with the cells numbered as given; repaired on each cell once; the result
-    about every cell given (:func:`.copies.restore`)."""
-    P0, H = validate_arrays(args["points"], args["hexes"])
-    others = _validate_cells(args["cells"], P0.shape[0])
-    blocks = [("hexahedron", H)] + others
-    refuse_collapsed(blocks)
-    refuse_mirrored(P0, blocks)
-    refuse_folded(P0, H, others)
-    kept = originals(blocks, twin)
-    res = repair(**dict(args, hexes=kept[0][1], cells=kept[1:] or None))
-    return restore(res, twin, H.shape[0], check_cells(res.points, others) if others else None)
 
 
 def _leashed_again(first, res, run):
