@@ -717,6 +717,48 @@ def test_rounds_below_their_start_stop_when_their_pace_cannot_bring_them_back():
     assert not op.recovers_in_time([(1.0, 0.30), (4.0, 0.32)], 0.35, 8.4)
 
 
+def test_vertex_steps_run_before_stage_2s_region_widens(monkeypatch):
+    """Where stage 2's rounds reach their region's threshold (the cells left out cap the minimum) the region widens;
+    first the vertex steps run from where the rounds ended (``driver.WIDEN_LOCAL_SECONDS``: warrior_graded's wider
+    region crept 0.47 -> 0.60 in 19 s of rounds where the vertex steps reach 0.74 in a few). On 4^3 and 5^3 cubed
+    balls with their interior moved by up to half an edge: right after a chunk of rounds, a pass of vertex steps of
+    that budget from the rounds' mesh, ending at or above it; a next chunk starts from its mesh; certified."""
+    from hexsos_plugins.examples import cubed_ball
+    from hexsos_plugins.meshrepair import driver
+
+    monkeypatch.setattr(driver, "WIDEN_LOCAL_SECONDS", 2.5)  # told apart from the 2 s between chunks of 10 rounds
+    local, improve = driver._Optimize._local, op.improve
+    events = []
+
+    def spy_local(self, V, *a, seconds=None, **k):
+        W = local(self, V, *a, seconds=seconds, **k)
+        events.append(("local", seconds, hs.scaled_jacobian(V, H).min(), hs.scaled_jacobian(W, H).min()))
+        return W
+
+    def spy_improve(prob, *a, **k):
+        start = hs.scaled_jacobian(prob.full(prob.x0()), H).min()
+        info = improve(prob, *a, **k)
+        events.append(("rounds", None, start, hs.scaled_jacobian(prob.V, H).min()))
+        return info
+
+    monkeypatch.setattr(driver._Optimize, "_local", spy_local)
+    monkeypatch.setattr(op, "improve", spy_improve)
+    seen = 0
+    for n in (4, 5):
+        Q, H = cubed_ball(n)
+        events.clear()
+        r = hs.repair(stress(Q, H, frac=1.0, amp=0.5, seed=0), H, jobs=0)
+        assert r.success
+        for i, (kind, seconds, start, end) in enumerate(events):
+            if (kind, seconds) != ("local", 2.5):
+                continue
+            seen += 1
+            assert events[i - 1][0] == "rounds" and start == events[i - 1][3] and end >= start
+            if i + 1 < len(events) and events[i + 1][0] == "rounds":
+                assert events[i + 1][2] == end
+    assert seen >= 2, events
+
+
 def test_improve_judges_the_pace_of_rounds_below_their_start(monkeypatch):
     """``improve`` asks :func:`recovers_in_time` after each round with :data:`PACE_SECONDS`: on the cubed ball of the
     test above (first round 0.69 -> 0.65, then back past the start) a grace of 0 s stops the rounds at the first
