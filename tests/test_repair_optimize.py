@@ -717,6 +717,47 @@ def test_rounds_below_their_start_stop_when_their_pace_cannot_bring_them_back():
     assert not op.recovers_in_time([(1.0, 0.30), (4.0, 0.32)], 0.35, 8.4)
 
 
+def test_rounds_creeping_above_their_start_stop_by_the_clock():
+    """``_creeps_by_the_clock``: warrior_graded perturbed by 1.5 edge lengths (seconds, minimum after each round,
+    measured; its start 0.3715): rounds of 2.5-3 s back above the start at 0.4126, then 0.4131, 0.4163 (0.004 in 5.5
+    s: creeping, stopped there instead of running on to 0.4215 at 24.7 s); rounds below the start are never judged
+    so (their pace is), nor rounds with less than the window behind them, nor a minimum rising faster."""
+    warrior = [(0.0, 0.3715), (2.5, 0.3215), (2.7, 0.3281), (5.7, 0.3445), (8.8, 0.4126), (9.1, 0.4126),
+               (12.2, 0.4131), (14.8, 0.4163), (17.0, 0.4184), (19.4, 0.4189), (22.0, 0.4215)]
+    stops = [k for k in range(1, len(warrior) + 1) if op._creeps_by_the_clock(warrior[:k])]
+    assert stops and stops[0] == 8  # at 14.8 s: the window from 8.8 s
+    # below the start all along: never judged by the clock (the dip at 2.5-5.7 s is)
+    assert not any(op._creeps_by_the_clock(warrior[:k]) for k in range(1, 5))
+    # the same rounds rising 0.002 a second instead: not creeping
+    fast = [(t, m if t < 8 else 0.4126 + 0.002 * (t - 8.8)) for t, m in warrior]
+    assert not any(op._creeps_by_the_clock(fast[:k]) for k in range(1, len(fast) + 1))
+    # a window longer than the rounds so far: not judged
+    assert not op._creeps_by_the_clock(warrior[:8], window=20.0)
+    # the rate decides: at half of it the same rounds go on past 14.8 s
+    assert op._creeps_by_the_clock(warrior[:8], rate=1e-3) and not op._creeps_by_the_clock(warrior[:8], rate=5e-4)
+
+
+def test_improve_stops_rounds_creeping_by_the_clock(monkeypatch):
+    """``improve`` asks :func:`_creeps_by_the_clock` after each round: on the cubed ball after the vertex steps
+    (0.69 -> 0.65, then 0.78, 0.77, 0.81, ... past the start) a rate no round can meet stops the rounds at the
+    fourth (the first with two rounds behind it, one above the start), a rate of 0 lets all eight run, and the
+    same rounds are bit for bit alike up to the stop."""
+    from hexsos_plugins.meshrepair.driver import cell_size
+
+    Q, H, bm, mv, W = _ball_after_vertex_steps()
+    out = {}
+    monkeypatch.setattr(op, "CREEP_WINDOW", 0.0)
+    for rate in (0.0, 1e9):
+        monkeypatch.setattr(op, "CREEP_RATE", rate)
+        prob = op.Problem(W, [("hexahedron", H)], [cell_size(Q, "hexahedron", H)], mv, slide=bm.slide(W, mv))
+        seen = []
+        info = op.improve(prob, max_rounds=8, project=lambda X, p=prob: bm.project(X, p.slide.idx),
+                          on_step=lambda stage, V: seen.append(V.copy()))
+        out[rate] = (info, seen)
+    assert out[0.0][0]["rounds"] == 8 and out[1e9][0]["rounds"] == 4
+    assert all(np.array_equal(a, b) for a, b in zip(out[0.0][1], out[1e9][1]))
+
+
 def test_vertex_steps_run_before_stage_2s_region_widens(monkeypatch):
     """Where stage 2's rounds reach their region's threshold (the cells left out cap the minimum) the region widens;
     first the vertex steps run from where the rounds ended (``driver.WIDEN_LOCAL_SECONDS``: warrior_graded's wider

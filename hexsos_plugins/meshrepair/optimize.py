@@ -128,6 +128,10 @@ T_STEP = 0.9  # stage 2: t moves this fraction of the way to the current minimum
 # a few rounds and rises again later), with 6 at 0.335 / 0.351 / 0.343
 PATIENCE = 6
 CREEP = 2e-3
+#: ... and so is a minimum above RESTART_BELOW that rose by less than CREEP_RATE a second over the last CREEP_WINDOW
+#: seconds of rounds
+CREEP_WINDOW = 5.0
+CREEP_RATE = 1e-3
 #: Rounds below their start (``improve(..., recover_seconds=s)``) are given this long before their pace is judged
 #: (:func:`recovers_in_time`): the published meshes' rounds of a fraction of a second are never judged while they
 #: fall (dinopet_graded's first chunk: 0.240 -> 0.193, back above its start in 3.1 s)
@@ -809,6 +813,7 @@ def improve(prob: Problem, *, target=None, max_rounds=40, max_iter=60, deadline=
     hist = [m]
     low_start = low_share(prob, prob.V) if recover_seconds is not None else None
     trail = []  # (seconds since the start, low_share) after each round
+    paced = [(0.0, m)]  # (seconds since the start, the minimum) after each round
     early = target is not None  # stop a solve as soon as the target is reached (until that proves premature)
     for rnd in range(1, max_rounds + 1):
         if rnd > 1 and deadline is not None and time.perf_counter() > deadline:
@@ -854,8 +859,10 @@ def improve(prob: Problem, *, target=None, max_rounds=40, max_iter=60, deadline=
         # is stalled too:
         # less than CREEP per round over the last ``patience`` rounds; the vertex steps that follow stage 2
         # (:mod:`hexsos_plugins.localopt`) raise such a minimum in a fraction of a second
-        creeping = (m >= RESTART_BELOW and len(hist) > patience
-                    and hist[-1] - hist[-1 - patience] < CREEP * patience)
+        now = time.perf_counter() - t_start
+        paced.append((now, m))
+        creeping = m >= RESTART_BELOW and ((len(hist) > patience and hist[-1] - hist[-1 - patience] < CREEP * patience)
+                                           or _creeps_by_the_clock(paced))
         if m > best + min_gain and not creeping:
             best, stall = m, 0
         else:
@@ -876,6 +883,21 @@ def improve(prob: Problem, *, target=None, max_rounds=40, max_iter=60, deadline=
         t = t + T_STEP * (m - t)
     info["min_sj"] = prob.min_sj(prob.V)
     return info
+
+
+def _creeps_by_the_clock(paced, window=None, rate=None):
+    """Whether the minimum, after each round ``paced`` [(seconds, minimum)], the first the start's, rose by less
+    than ``rate`` per second (:data:`CREEP_RATE`) over the last ``window`` seconds (:data:`CREEP_WINDOW`; at least
+    two rounds in it) from a round above the start (rounds below it are judged by their pace to recover:
+    :func:`recovers_in_time`)."""
+    window = CREEP_WINDOW if window is None else window
+    rate = CREEP_RATE if rate is None else rate
+    now, m = paced[-1]
+    past = [(t, v) for t, v in paced[1:-2] if now - t >= window and v >= paced[0][1]]
+    if not past:
+        return False
+    t0, m0 = past[-1]
+    return m - m0 < rate * (now - t0)
 
 
 def low_share(prob, V, share=RECOVER_SHARE) -> float:
