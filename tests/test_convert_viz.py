@@ -78,6 +78,19 @@ def test_convert_json_and_input_untouched(mixed_file, tmp_path, capsys):
     assert mixed_file.read_bytes() == before
 
 
+def test_convert_says_cells_written_twice_and_keeps_them(tmp_path, capsys):
+    """A cell written again on the same points (Gmsh's MSH 2 writes an element once per physical group) is named in
+    ``convert``'s one line and kept in its output; a mesh without one says nothing of it."""
+    P, H = structured_grid(2)
+    for extra, said in ((H[[3]][:, [1, 2, 3, 0, 5, 6, 7, 4]], ", 1 written twice"), (np.zeros((0, 8), int), None)):
+        src, out = tmp_path / f"in{len(extra)}.vtu", tmp_path / f"out{len(extra)}.vtu"
+        write(meshio.Mesh(P, [("hexahedron", np.vstack([H, extra]))]), src)
+        assert cli.main(["convert", str(src), str(out)]) == 0
+        line = capsys.readouterr().out
+        assert ("written twice" in line) == (said is not None) and (said is None or said in line), line
+        assert len(read_meshio(out).cells[0].data) == len(H) + len(extra)
+
+
 def test_convert_unknown_output_extension(mixed_file, tmp_path, capsys):
     assert cli.main(["convert", str(mixed_file), str(tmp_path / "o.xyz")]) == 2
     assert "hexsos: error:" in capsys.readouterr().err

@@ -91,8 +91,9 @@ def _pictures(args, mesh, result) -> list:
 def _one_line(result) -> str:
     c = result.counts()
     what = "hexes" if c["hexes"] == c["cells"] else "cells"
+    twice = int((result.repeated_cells >= 0).sum())  # a solver would count them twice: said, not dropped
     return (f"{c['cells']} {what}, {c['invalid']} invalid ({c['invalid_inside_only']} inside only), "
-            f"{c['undecided']} undecided")
+            f"{c['undecided']} undecided" + (f", {twice} written twice" if twice else ""))
 
 
 def _cmd_convert(args) -> int:
