@@ -719,8 +719,9 @@ def test_rounds_below_their_start_stop_when_their_pace_cannot_bring_them_back():
 
 def test_rounds_creeping_above_their_start_stop_by_the_clock():
     """``_creeps_by_the_clock``: warrior_graded perturbed by 1.5 edge lengths (seconds, minimum after each round,
-    measured; its start 0.3715): rounds of 2.5-3 s back above the start at 0.4126, then 0.4131, 0.4163 (0.004 in 5.5
-    s: creeping, stopped there instead of running on to 0.4215 at 24.7 s); rounds below the start are never judged
+    measured, seconds from the rounds' start 0.3715): rounds of 2.5-3 s back above the start at 0.4126, then 0.4131,
+    0.4163 (0.004 in 6 s: creeping, stopped at 14.8 s instead of running on to 0.4215 at 22.0 s); rounds below the
+    start are never judged
     so (their pace is), nor rounds with less than the window behind them, nor a minimum rising faster."""
     warrior = [(0.0, 0.3715), (2.5, 0.3215), (2.7, 0.3281), (5.7, 0.3445), (8.8, 0.4126), (9.1, 0.4126),
                (12.2, 0.4131), (14.8, 0.4163), (17.0, 0.4184), (19.4, 0.4189), (22.0, 0.4215)]

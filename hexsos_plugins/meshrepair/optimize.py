@@ -857,8 +857,10 @@ def improve(prob: Problem, *, target=None, max_rounds=40, max_iter=60, deadline=
                 break
         # a minimum above RESTART_BELOW creeping up (rockarm: 0.518 -> 0.523 over five rounds of 0.4-0.7 s each)
         # is stalled too:
-        # less than CREEP per round over the last ``patience`` rounds; the vertex steps that follow stage 2
-        # (:mod:`hexsos_plugins.localopt`) raise such a minimum in a fraction of a second
+        # less than CREEP per round over the last ``patience`` rounds, or, from a round above the start, less than
+        # CREEP_RATE a second over the last CREEP_WINDOW seconds (:func:`_creeps_by_the_clock`: warrior_graded
+        # perturbed, rounds of 2.5 s); the vertex steps that follow stage 2 (:mod:`hexsos_plugins.localopt`) raise
+        # such a minimum in a fraction of a second
         now = time.perf_counter() - t_start
         paced.append((now, m))
         creeping = m >= RESTART_BELOW and ((len(hist) > patience and hist[-1] - hist[-1 - patience] < CREEP * patience)
