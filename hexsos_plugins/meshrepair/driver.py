@@ -155,8 +155,9 @@ PAPER_LIFT_SECONDS = 5.0
 #: The rings of cells around the bad ones whose vertices :func:`harmonic_untangle` moves
 HARMONIC_RINGS = 2
 PRE_STEPS = True
-#: stage 2's rounds between two passes of vertex steps
+#: stage 2's rounds between two passes of vertex steps, each of at most CHUNK_LOCAL_SECONDS
 CHUNK_ROUNDS = 10
+CHUNK_LOCAL_SECONDS = 2.0
 #: Before stage 2's region widens, the vertex steps run for at most this long from where its rounds ended
 WIDEN_LOCAL_SECONDS = 2.0
 #: A chunk of stage 2's rounds still below its start after this many seconds stops (and is undone):
@@ -1318,27 +1319,27 @@ class _Optimize:
                     V, sj = prob.V, sj_new
                     if m_new < m + 1e-3 and not info.get("reached"):
                         break  # rounds that gained nothing (kitten_with_bifur_3 with the edge floor: 30 s of them)
+                    in_time = not (deadline is not None and time.perf_counter() > deadline)
                     # the cells left out (scaled Jacobian >= tau) cap the minimum: widen the region while it pays
-                    if ((self.min_sj is None or m_new < self.min_sj) and m_new > tau - 0.05 and tau < _TAU_MAX
-                            and m_new > m + 1e-3 and not (deadline is not None and time.perf_counter() > deadline)):
-                        if self.local_steps:
-                            # the vertex steps first, from where this region's rounds ended: the wider region's
-                            # rounds from there crept up 0.002-0.01 a round (warrior_graded: 0.473 -> 0.572 in 17 s,
-                            # the vertex steps after them to 0.737 in 7 s; README, Stages (2))
-                            V = self._local(V, movable, bm, others, deadline, seconds=WIDEN_LOCAL_SECONDS)
-                            sj = cell_scaled_jacobians(V, blocks)
-                            m_new = min(float(s.min()) for s in sj if s.size)
-                        m, tau = m_new, min(m_new + 0.2, _TAU_MAX)
-                        continue
-                    if (info.get("rounds", 0) >= CHUNK_ROUNDS and not info.get("reached") and self.local_steps
-                            and not (deadline is not None and time.perf_counter() > deadline)):
-                        # the rounds' budget between vertex steps: below 0.3 each round gains ~0.002 (bunny), the
-                        # steps from there tenfold more in a fraction of a second; then the rounds go on
-                        V = self._local(V, movable, bm, others, deadline, seconds=2.0)
+                    widen = ((self.min_sj is None or m_new < self.min_sj) and m_new > tau - 0.05 and tau < _TAU_MAX
+                             and m_new > m + 1e-3 and in_time)
+                    # else the rounds' budget between vertex steps: below 0.3 each round gains ~0.002 (bunny), the
+                    # steps from there tenfold more in a fraction of a second; then the rounds go on
+                    between = (not widen and info.get("rounds", 0) >= CHUNK_ROUNDS and not info.get("reached")
+                               and self.local_steps and in_time)
+                    if not (widen or between):
+                        break
+                    if self.local_steps:
+                        # before a region widens too, from where its rounds ended: the wider region's rounds from
+                        # there crept up 0.002-0.01 a round (warrior_graded: 0.473 -> 0.572 in 17 s, the vertex
+                        # steps after them to 0.737 in 7 s; README, Stages (2))
+                        V = self._local(V, movable, bm, others, deadline,
+                                        seconds=WIDEN_LOCAL_SECONDS if widen else CHUNK_LOCAL_SECONDS)
                         sj = cell_scaled_jacobians(V, blocks)
-                        m = min(float(s.min()) for s in sj if s.size)
-                        continue
-                    break
+                        m_new = min(float(s.min()) for s in sj if s.size)
+                    m = m_new
+                    if widen:
+                        tau = min(m_new + 0.2, _TAU_MAX)
                 if slide and np.any(V != P0):
                     # stage 2's barrier outweighs the boundary penalty near its bound t, and its projections
                     # are kept only where every cell stays above t: the vertices left off the surface go back
