@@ -174,10 +174,12 @@ def _joint_stage(name):
 
 def test_published_cat_2_joint_steps_lift_the_worst_cluster():
     """cat_2 (published): after the vertex steps its worst hexes, a cluster of eight around a feature corner, sit at
-    0.66-0.68; the repair's joint steps take the certified minimum past 0.74."""
+    0.66-0.68 (0.735 since stage 2 keeps a chunk of rounds below its start that the vertex steps lift past it); the
+    repair's joint steps take the certified minimum past 0.80 (0.862 measured), 0.05 at least above where they
+    began."""
     r, before, after = _joint_stage("cat_2.mesh")
-    assert before < 0.70 and after > 0.74, (before, after)
-    assert r.stats["joint_steps"] > 0 and r.stats["min_sj_after"] > 0.74
+    assert before < 0.76 and after > max(0.80, before + 0.05), (before, after)
+    assert r.stats["joint_steps"] > 0 and r.stats["min_sj_after"] > 0.80
     assert f"joint steps {r.stats['stage_seconds']['joint']:.2f} s ({r.stats['joint_steps']} kept)" in r.summary()
 
 

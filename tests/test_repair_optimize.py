@@ -624,7 +624,9 @@ def test_stage_two_holds_the_edge_floor(monkeypatch):
 def test_rounds_that_lower_the_minimum_are_undone(monkeypatch):
     """Stage 2's rounds may end below where they began (the barrier lets the minimum fall to its bound t): the
     driver then takes back the mesh it gave them and ends the stage. A stand-in for the rounds that lowers the
-    minimum leaves the repair exactly where one that changes nothing does, with its rounds counted as undone."""
+    minimum leaves the repair exactly where one that changes nothing does, with its rounds counted as undone (the
+    vertex steps from its end not counted: ``BELOW_KEEP`` infinite; the next test keeps such rounds)."""
+    from hexsos_plugins.meshrepair import driver as dr
     from hexsos_plugins.meshrepair import optimize as opt
 
     Q, H = cubed_ball(3)
@@ -642,6 +644,7 @@ def test_rounds_that_lower_the_minimum_are_undone(monkeypatch):
         return {"rounds": 10, "iterations": 7, "reached": False, "min_sj": prob.min_sj(prob.V)}
 
     monkeypatch.setattr(opt, "improve", worse)
+    monkeypatch.setattr(dr, "BELOW_KEEP", np.inf)  # never kept, whatever the vertex steps from its end reach
     r1 = hs.repair(Q, H)
     monkeypatch.setattr(opt, "improve", same)
     r0 = hs.repair(Q, H)
@@ -650,6 +653,100 @@ def test_rounds_that_lower_the_minimum_are_undone(monkeypatch):
     assert r1.success and r1.stats["quality_rounds_undone"] == 10 and r0.stats["quality_rounds_undone"] == 0
     assert np.array_equal(r1.points, r0.points)
     assert "the last 10 undone" in r1.summary() and "undone" not in r0.summary()
+
+
+
+def _below_then_steps(monkeypatch, keep, push=0.0):
+    """A 4^3 grid, its inner vertices moved by up to 0.08 (its flat faces keep the boundary on them), repaired with
+    stage 2's first chunk of rounds ending below its start by the minimum: the
+    real rounds, then an inner vertex of the best hex with one pulled toward its centre until the minimum is 0.01
+    under the chunk's start. Returns the repair, its hexes and what it saw: the chunks' (start, end), the vertex pulled, and
+    the vertex steps' (input, output) pairs."""
+    from hexsos_plugins.meshrepair import driver as dr
+    from hexsos_plugins.meshrepair.fidelity import boundary_quads
+
+    real_improve, real_local = op.improve, dr._Optimize._local
+    Q, H = structured_grid(4)
+    inside = ~np.isin(np.arange(len(Q)), boundary_quads(H))
+    Q[inside] += np.random.default_rng(3).uniform(-0.08, 0.08, (int(inside.sum()), 3))
+    seen = {"chunks": [], "local": []}
+
+    def damaged(prob, **kw):
+        start = prob.V.copy()
+        info = real_improve(prob, **kw)
+        if not seen["chunks"]:
+            V = prob.V.copy()
+            sj = dr.cell_scaled_jacobians(V, [("hexahedron", H)])[0]
+            inner = prob.free_mask & ~np.isin(np.arange(len(V)), boundary_quads(H))
+            h = max((i for i in range(len(H)) if inner[H[i]].any()), key=lambda i: sj[i])
+            v = next(int(x) for x in H[h] if inner[x])
+            c = V[H[h]].mean(axis=0)
+            m0 = prob.min_sj(start)
+            for f in np.linspace(0.05, 0.6, 56):
+                W = V.copy()
+                W[v] = V[v] + f * (c - V[v])
+                if 0 < dr.cell_scaled_jacobians(W, [("hexahedron", H)])[0].min() < m0 - 0.01:
+                    break
+            else:
+                raise AssertionError("no move lowers the minimum")
+            if push:  # and the grid's corner at the origin pushed out along -x, ``push`` of an edge
+                W[0, 0] -= push * 0.25
+            prob.V = W
+            seen["pulled"] = v
+        seen["chunks"].append((start, prob.V.copy()))
+        return dict(info, min_sj=prob.min_sj(prob.V))
+
+    def local(self, V, *a, **k):
+        W = real_local(self, V, *a, **k)
+        seen["local"].append((V.copy(), W.copy()))
+        return W
+
+    monkeypatch.setattr(op, "improve", damaged)
+    monkeypatch.setattr(dr._Optimize, "_local", local)
+    monkeypatch.setattr(dr, "BELOW_KEEP", keep)
+    monkeypatch.setattr(dr, "PRE_STEPS", False)  # else the vertex steps alone take it to 0.9998: no rounds
+    return hs.repair(Q, H), H, seen
+
+
+def test_rounds_below_their_start_are_kept_where_the_vertex_steps_from_them_rise_past_it(monkeypatch):
+    """A chunk of stage 2's rounds that ends below its start by the minimum may still have raised its region (a
+    perturbed kitten_with_bifur_3: 0.369 -> 0.326, its region's 1st percentile up): the vertex steps run from its
+    end, and where they rise ``BELOW_KEEP`` above the start the chunk is kept and the repair goes on from them;
+    otherwise (``BELOW_KEEP`` 1: never) the chunk is undone and the next steps start from the chunk's start; also
+    where they leave the boundary farther off the input surface than the band and than before."""
+    from hexsos_plugins.meshrepair import driver as dr
+
+    def msj(V, H):
+        return float(dr.cell_scaled_jacobians(V, [("hexahedron", H)])[0].min())
+
+    r, H, seen = _below_then_steps(monkeypatch, 0.02)
+    start, end = seen["chunks"][0]
+    assert msj(end, H) < msj(start, H) - 0.005
+    after = [W for V, W in seen["local"] if np.array_equal(V, end)]
+    assert after and msj(after[0], H) > msj(start, H) + 0.02
+    assert r.success and r.stats["quality_chunks_kept_below"] == 1 and r.stats["quality_rounds_undone"] == 0
+    # the steps after the chunk go on from the kept mesh, never from the chunk's start again
+    i = next(i for i, (V, _) in enumerate(seen["local"]) if np.array_equal(V, end))
+    assert not any(np.array_equal(V, start) for V, _ in seen["local"][i + 1:])
+
+    r, H, seen = _below_then_steps(monkeypatch, 1.0)
+    start, end = seen["chunks"][0]
+    i = next(i for i, (V, _) in enumerate(seen["local"]) if np.array_equal(V, end))
+    assert r.success and r.stats["quality_chunks_kept_below"] == 0 and r.stats["quality_rounds_undone"] > 0
+    # undone: the next steps start where the chunk did (the boundary vertices projected back onto the surface after
+    # the stage; the pulled vertex is inside)
+    v, nxt = seen["pulled"], seen["local"][i + 1][0]
+    assert np.array_equal(nxt[v], start[v]) and not np.array_equal(nxt[v], end[v])
+
+    # rising past the start, but with a boundary vertex left farther off the input surface than the band and than
+    # before the chunk (a corner, which the vertex steps before the last pass do not move): undone too (a torus with
+    # its boundary folded kept two such chunks and ended 3.6% of its diagonal off the surface, 1.3% undone)
+    r, H, seen = _below_then_steps(monkeypatch, 0.02, push=0.3)
+    start, end = seen["chunks"][0]
+    after = [W for V, W in seen["local"] if np.array_equal(V, end)]
+    assert after and msj(after[0], H) > msj(start, H) + 0.02 and after[0][0, 0] == end[0, 0] == -0.075
+    assert r.success and r.stats["quality_chunks_kept_below"] == 0 and r.stats["quality_rounds_undone"] > 0
+    assert r.stats["boundary_max_distance"] < 0.02
 
 
 def _ball_after_vertex_steps():

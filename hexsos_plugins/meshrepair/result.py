@@ -157,7 +157,10 @@ def summary_optimize(res):
         f"stages            untangle {st.get('untangle', 0):.2f} s ({s['untangle_iterations']} iterations), quality "
         f"{st.get('quality', 0):.2f} s ({s['quality_rounds']} rounds"
         + (f", the last {s['quality_rounds_undone']} undone: they ended below where they began"
-           if s.get("quality_rounds_undone") else "") + ")"
+           if s.get("quality_rounds_undone") else "")
+        + (f"; {s['quality_chunks_kept_below']} chunk{'s' * (s['quality_chunks_kept_below'] != 1)} of them ended "
+           "below their start, kept: the vertex steps from there rose past it" if s.get("quality_chunks_kept_below")
+           else "") + ")"
         + (f", vertex steps {st['local']:.2f} s ({s.get('local_steps', 0)} steps)" if "local" in st else "")
         + (f", joint steps {st['joint']:.2f} s ({s.get('joint_steps', 0)} kept)" if "joint" in st else "")
         + (f" ({s['joint_past_budget']:.2f} s of them past their budget, while they gained)"
