@@ -163,8 +163,9 @@ WIDEN_LOCAL_SECONDS = 2.0
 #: A chunk of stage 2's rounds ending below its start by the minimum is kept where the vertex steps from its end
 #: (CHUNK_LOCAL_SECONDS) rise this much above the start; undone otherwise. Over three starts perturbed by 1e-12
 #: (`python -m comparison.bench_repair --published --starts 3`, 2026-12-07): kitten_with_bifur_3's median 0.669 ->
-#: 0.684, rockarm's 0.862 -> 0.865, the bunny's and cat_2's 0.001 lower, the other four the same. With 1e-3,
-#: warrior_graded's wider regions were kept at +0.006-0.013 each and its rounds ran their 30 s (38.2 s in all)
+#: 0.685, rockarm's 0.862 -> 0.865, cat_2's 0.001 lower, the other five the same. With 1e-3, warrior_graded's wider
+#: regions were kept at +0.006-0.013 each and its rounds ran their 30 s (38.2 s in all). Nor is a chunk kept whose
+#: steps leave the boundary farther off the input surface than the band and than before (:meth:`_farther_out`)
 BELOW_KEEP = 0.02
 #: A chunk of stage 2's rounds still below its start after this many seconds stops (and is undone):
 #: kitten_with_bifur_3 perturbed by 1.5 edge lengths spent the quality stage's 30 s in rounds of 5 s below their
