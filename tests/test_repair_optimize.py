@@ -655,13 +655,12 @@ def test_rounds_that_lower_the_minimum_are_undone(monkeypatch):
     assert "the last 10 undone" in r1.summary() and "undone" not in r0.summary()
 
 
-
 def _below_then_steps(monkeypatch, keep, push=0.0):
     """A 4^3 grid, its inner vertices moved by up to 0.08 (its flat faces keep the boundary on them), repaired with
-    stage 2's first chunk of rounds ending below its start by the minimum: the
-    real rounds, then an inner vertex of the best hex with one pulled toward its centre until the minimum is 0.01
-    under the chunk's start. Returns the repair, its hexes and what it saw: the chunks' (start, end), the vertex pulled, and
-    the vertex steps' (input, output) pairs."""
+    stage 2's first chunk of rounds ending below its start by the minimum: the real rounds, then an inner vertex of
+    the best hex with one pulled toward its centre until the minimum is 0.01 under the chunk's start. Returns the
+    repair, its hexes and what it saw: the chunks' (start, end), the vertex pulled, and the vertex steps' (input,
+    output) pairs."""
     from hexsos_plugins.meshrepair import driver as dr
     from hexsos_plugins.meshrepair.fidelity import boundary_quads
 

@@ -1330,7 +1330,8 @@ class _Optimize:
                         # below their start by the minimum, the rounds may still have raised their region (a
                         # perturbed kitten_with_bifur_3: 0.369 -> 0.326 while the region's 1st percentile rose 0.471
                         # -> 0.479): judged after the vertex steps that follow every chunk, kept where these end
-                        # BELOW_KEEP above the start (0.369 -> 0.460 there) and the rounds go on from them
+                        # BELOW_KEEP above the start (0.369 -> 0.460 there) with the boundary no farther off the
+                        # input surface than the band and than before, and the rounds go on from them
                         W = self._local(prob.V, movable, bm, others, deadline, seconds=CHUNK_LOCAL_SECONDS)
                         sj_w = cell_scaled_jacobians(W, blocks)
                         m_w = min(float(s.min()) for s in sj_w if s.size)
