@@ -274,6 +274,11 @@ def cell_scaled_jacobians(points, blocks) -> list:
     return [scaled_jacobian(points, [(name, conn)]) for name, conn in blocks]
 
 
+def _least(sj) -> float:
+    """The least scaled Jacobian over the blocks' arrays (``cell_scaled_jacobians``' output)."""
+    return min(float(s.min()) for s in sj if s.size)
+
+
 def _dilate(masks, blocks, N, rings):
     """Cells within ``rings`` layers (sharing a vertex) of the marked cells; ``rings=None``: all."""
     if rings is None:
@@ -932,6 +937,13 @@ class _Optimize:
         self._step("local", W)
         return W
 
+    def _stepped(self, V, movable, bm, others, deadline, seconds):
+        """Stage 2's vertex steps between its chunks of rounds (:meth:`_local`, at most ``seconds``): the mesh,
+        its cells' scaled Jacobians per block and their least."""
+        W = self._local(V, movable, bm, others, deadline, seconds=seconds)
+        sj = cell_scaled_jacobians(W, self.blocks)
+        return W, sj, _least(sj)
+
     @staticmethod
     def _farther_out(W, V, bm):
         """Whether ``W``'s farthest boundary vertex from the input surface lies farther than ``V``'s and than the
@@ -1290,7 +1302,7 @@ class _Optimize:
             if untangled:
                 rounds_left = self.max_rounds
                 sj = cell_scaled_jacobians(V, blocks)
-                m = min(float(s.min()) for s in sj if s.size)
+                m = _least(sj)
                 # the region: cells below tau and their rings, the same with a target, whose path is the default's
                 # cut short where it reaches it (with cells below target + 0.1 only, the bunny stalled at 0.11 / 0.19
                 # on two of five perturbed starts; with the larger of the two regions, kitten_with_bifur_3 asked for
@@ -1324,7 +1336,7 @@ class _Optimize:
                     info2["reached"] = info.get("reached", False)
                     rounds_left -= max(info.get("rounds", 0), 1)
                     sj_new = cell_scaled_jacobians(prob.V, blocks)
-                    m_new = min(float(s.min()) for s in sj_new if s.size)
+                    m_new = _least(sj_new)
                     in_time = not (deadline is not None and time.perf_counter() > deadline)
                     if m_new < m and self.local_steps and in_time:
                         # below their start by the minimum, the rounds may still have raised their region (a
@@ -1332,9 +1344,7 @@ class _Optimize:
                         # -> 0.479): judged after the vertex steps that follow every chunk, kept where these end
                         # BELOW_KEEP above the start (0.369 -> 0.460 there) with the boundary no farther off the
                         # input surface than the band and than before, and the rounds go on from them
-                        W = self._local(prob.V, movable, bm, others, deadline, seconds=CHUNK_LOCAL_SECONDS)
-                        sj_w = cell_scaled_jacobians(W, blocks)
-                        m_w = min(float(s.min()) for s in sj_w if s.size)
+                        W, sj_w, m_w = self._stepped(prob.V, movable, bm, others, deadline, CHUNK_LOCAL_SECONDS)
                         if m_w > m + BELOW_KEEP and not (slide and self._farther_out(W, V, bm)):
                             V, sj, m = W, sj_w, m_w
                             info2["kept_below"] += 1
@@ -1362,10 +1372,8 @@ class _Optimize:
                         # before a region widens too, from where its rounds ended: the wider region's rounds from
                         # there crept up 0.002-0.01 a round (warrior_graded: 0.473 -> 0.572 in 17 s, the vertex
                         # steps after them to 0.737 in 7 s; README, Stages (2))
-                        V = self._local(V, movable, bm, others, deadline,
-                                        seconds=WIDEN_LOCAL_SECONDS if widen else CHUNK_LOCAL_SECONDS)
-                        sj = cell_scaled_jacobians(V, blocks)
-                        m_new = min(float(s.min()) for s in sj if s.size)
+                        V, sj, m_new = self._stepped(V, movable, bm, others, deadline,
+                                                     WIDEN_LOCAL_SECONDS if widen else CHUNK_LOCAL_SECONDS)
                     m = m_new
                     if widen:
                         tau = min(m_new + 0.2, _TAU_MAX)
