@@ -748,6 +748,55 @@ def test_rounds_below_their_start_are_kept_where_the_vertex_steps_from_them_rise
     assert r.stats["boundary_max_distance"] < 0.02
 
 
+
+def test_the_vertex_steps_between_chunks_of_rounds_move_feature_corners_within_the_band(monkeypatch):
+    """A hex held by a pinned feature corner caps stage 2's rounds (kitten_with_bifur_3's hex 16739 at 0.4602, three
+    of its vertices feature corners): the vertex steps after a chunk of rounds end with the band's pass, which moves
+    them within the band (``CHUNK_CORNERS``), and the rounds go on from there. A 4^3 grid with noise inside and its
+    corner at the origin moved in by 0.08 along the diagonal: after its first chunk the steps move that corner,
+    within the band of its input position, the other boundary vertices staying on the grid's faces, and reach 0.93
+    where without that pass (the corner pinned) they reach 0.82."""
+    from hexsos_plugins.meshrepair import driver as dr
+    from hexsos_plugins.meshrepair.fidelity import boundary_quads
+
+    real_stepped = dr._Optimize._stepped
+    seen = []
+
+    def stepped(self, V, *a, **k):
+        out = real_stepped(self, V, *a, **k)
+        seen.append((V.copy(), out[0], self.band_corners.copy(), out[2], a[1]))
+        return out
+
+    monkeypatch.setattr(dr._Optimize, "_stepped", stepped)
+    monkeypatch.setattr(dr, "PRE_STEPS", False)  # else the vertex steps alone lift it: no rounds
+    Q, H = structured_grid(4)
+    inside = ~np.isin(np.arange(len(Q)), boundary_quads(H))
+    Q[inside] += np.random.default_rng(3).uniform(-0.08, 0.08, (int(inside.sum()), 3))
+    Q[0] += 0.08
+    band = 0.012 * np.sqrt(3.0)  # boundary.BAND_DIAGONAL of the diagonal (a fifth of an edge is more)
+    reached = {}
+    for on in (True, False):
+        monkeypatch.setattr(dr, "CHUNK_CORNERS", on)
+        seen.clear()
+        r = hs.repair(Q, H, jobs=0)
+        assert r.success and len(seen) == 1
+        V, W, corners, least, bm = seen[0]
+        assert 0 in corners  # the moved corner is a feature corner, pinned in the rounds
+        moved = np.linalg.norm(W[corners] - V[corners], axis=1)
+        if on:
+            assert moved.max() > 0.005 and np.linalg.norm(W[0] - Q[0]) <= band * (1 + 1e-9)
+            assert np.linalg.norm(r.points[corners] - Q[corners], axis=1).max() <= band * (1 + 1e-9)
+            # the other boundary vertices keep to the surface: on the grid's flat faces (away from the corner's
+            # bent quads) none ends farther off than it was (a vertex with a band would leave them along the normal)
+            bent = np.unique([q for q in boundary_quads(H) if 0 in q])
+            rest = np.setdiff1d(bm.vertices, np.union1d(corners, bent))
+            assert rest.size > 70
+            assert np.all(bm.distance(W, rest) <= bm.distance(V, rest) + 1e-12)
+        else:
+            assert moved.max() == 0.0
+        reached[on] = least
+    assert reached[True] > 0.9 and reached[False] < 0.85
+
 def _ball_after_vertex_steps():
     """A 3^3 cubed ball held on its surface, after the vertex steps: (Q, hexes, boundary model, movable, W), where
     stage 2's first round falls below its start (0.69 -> 0.65) and the next ones recover past it."""

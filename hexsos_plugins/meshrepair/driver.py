@@ -34,7 +34,8 @@
 Boundary: ``"slide"`` (default) keeps boundary vertices on the input's boundary surface, feature-edge vertices
 on their feature curves and pins feature corners (:mod:`hexsos_plugins.meshrepair.boundary`), each within a band
 of ``surface_tolerance`` of its boundary edge length (default a fifth; 0: exactly on them, corners fixed); feature
-corners move only in the last vertex steps, within the band, but those that keep a cell from being untangled
+corners move only within the band, in the vertex steps after chunks of stage 2's rounds and in the last ones,
+but those that keep a cell from being untangled
 slide on the surface from the start (:func:`stuck_corners`); where the repaired boundary surface ends farther
 than 1.9% of the diagonal from the input's and the input's cells there were valid, the repair runs again with the
 boundary vertices there held near their input positions, and keeps the nearer mesh if it costs little
@@ -160,6 +161,16 @@ CHUNK_ROUNDS = 10
 CHUNK_LOCAL_SECONDS = 2.0
 #: Before stage 2's region widens, the vertex steps run for at most this long from where its rounds ended
 WIDEN_LOCAL_SECONDS = 2.0
+#: Those steps between chunks and before widening end with a pass where the feature corners of the hexes below
+#: ``localopt.BAND_BELOW`` move within the band (the other boundary vertices in their tangent planes), so that the
+#: rounds after them start from there: a hex held by pinned feature corners caps the rounds' minimum until the last
+#: steps (kitten_with_bifur_3's hex 16739 at 0.4602, three of its vertices feature corners; the band's pass lifts it
+#: to 0.798). Over three starts perturbed by 1e-12 (`python -m comparison.bench_repair --published --starts 3`,
+#: 2026-12-07) the medians: kitten_with_bifur_3 0.685 -> 0.702, Dolphin_2 0.844 -> 0.851, the bunny 0.928 -> 0.933,
+#: rockarm 0.865 -> 0.853, the other four the same. Every boundary vertex of hexes below BAND_BELOW within the band
+#: there (as in the last steps): kitten_with_bifur_3 0.704, rockarm 0.865, but rockarm's boundary 2.06% of the
+#: diagonal from the input's (1.97% with the corners only; README, Published meshes)
+CHUNK_CORNERS = True
 #: A chunk of stage 2's rounds ending below its start by the minimum is kept where the vertex steps from its end
 #: (CHUNK_LOCAL_SECONDS) rise this much above the start; undone otherwise. Over three starts perturbed by 1e-12
 #: (`python -m comparison.bench_repair --published --starts 3`, 2026-12-07): kitten_with_bifur_3's median 0.669 ->
@@ -879,7 +890,7 @@ class _Optimize:
         self.surface_tolerance = float(surface_tolerance)
         self.leash = leash  # (boundary vertices, radius): held near their input positions (:func:`_leashed_again`)
         self.bm, self.suspect = None, None  # the boundary model and the input's inverted cells' vertices, once run
-        self.band_corners = np.zeros(0, dtype=np.int64)  # feature corners that move within the band (stage 2b)
+        self.band_corners = np.zeros(0, dtype=np.int64)  # feature corners that move within the band (band passes)
         self.local_info = {}
         self.undone_seconds = 0.0  # stage 2's rounds undone (they ended below their start): the joint steps' too
         self.history = []
@@ -891,16 +902,21 @@ class _Optimize:
         self.load_seconds = time.perf_counter() - t
         self.stopped = False
 
-    def _local(self, V, movable, bm, others, deadline, seconds=None, band=False):
+    def _local(self, V, movable, bm, others, deadline, seconds=None, band=False, corners_only=False):
         """Stage 2b (:func:`hexsos_plugins.meshrepair.localopt.local_sweeps`) on the hexes; vertices of other cells stay.
         Sliding boundary vertices move in their tangent planes, then back onto the input surface as far as every
         cell stays above the minimum reached; with ``band`` (the last steps) a second pass lets those of the hexes
-        below ``BAND_BELOW`` move within the band (feature corners too)."""
+        below ``BAND_BELOW`` move within the band (feature corners too), with ``corners_only`` (between stage 2's
+        chunks of rounds, ``CHUNK_CORNERS``) only the feature corners among them."""
         from . import optimize as opt
         from .localopt import BAND_BELOW, RATIO_FLOOR, local_sweeps
 
         mv = self._hex_movable(movable, others, band)
         slide = self.boundary == "slide"
+        banded = None
+        if corners_only:
+            banded = np.zeros(V.shape[0], dtype=bool)
+            banded[self.band_corners] = True
         N = V.shape[0]
         sizes = [cell_size(self.P0, name, conn) for name, conn in self.blocks]
 
@@ -920,7 +936,7 @@ class _Optimize:
         t_end = time.perf_counter() + (LOCAL_SECONDS if seconds is None else seconds)
         end = t_end if deadline is None else min(deadline, t_end)
         W, steps = V, 0
-        # on the surface first, then (the last steps, after stage 2: ``band``) within the band from there. Steps
+        # on the surface first, then (``band``: after stage 2's chunks and after stage 2) within the band. Steps
         # in the band alone ended lower on cubed balls (3^3 hexes: 0.76 against 0.81 on the surface), and before
         # stage 2 they lifted the low cells past its region's threshold, leaving it nothing to do (2^3 hexes:
         # 0.77 against 0.94)
@@ -928,7 +944,8 @@ class _Optimize:
         for below in passes:
             # the pass on the surface projects onto it (sliding); the band's pass into the band
             W, info = local_sweeps(W, self.H, mv, boundary=bm if slide else None, target=self.min_sj,
-                                   project=projector(below > -np.inf), deadline=end, band_below=below)
+                                   project=projector(below > -np.inf), deadline=end, band_below=below,
+                                   banded=banded)
             for k in ("sweeps", "steps"):
                 self.local_info[k] = self.local_info.get(k, 0) + info[k]
             steps += info["steps"]
@@ -938,9 +955,11 @@ class _Optimize:
         return W
 
     def _stepped(self, V, movable, bm, others, deadline, seconds):
-        """Stage 2's vertex steps between its chunks of rounds (:meth:`_local`, at most ``seconds``): the mesh,
-        its cells' scaled Jacobians per block and their least."""
-        W = self._local(V, movable, bm, others, deadline, seconds=seconds)
+        """Stage 2's vertex steps between its chunks of rounds (:meth:`_local`, at most ``seconds``, the feature
+        corners within the band where ``CHUNK_CORNERS``): the mesh, its cells' scaled Jacobians per block and their
+        least."""
+        W = self._local(V, movable, bm, others, deadline, seconds=seconds, band=CHUNK_CORNERS,
+                        corners_only=True)
         sj = cell_scaled_jacobians(W, self.blocks)
         return W, sj, _least(sj)
 
@@ -1154,7 +1173,7 @@ class _Optimize:
             if self.boundary == "fixed":
                 pin[bm.vertices] = True
             else:
-                if self.surface_tolerance > 0:  # pinned but in the last vertex steps, within the band
+                if self.surface_tolerance > 0:  # pinned but in the band's passes of the vertex steps
                     self.band_corners = bm.corners[~pin[bm.corners]]
                 pin[bm.corners] = True
         movable = ~pin

@@ -273,7 +273,7 @@ def local_untangle(V, H, sizes, movable, *, boundary=None, deadline=None, band=0
 
 def local_sweeps(V, H, movable, *, boundary=None, deadline=None, band=0.1, tau=0.02, step=0.05, max_sweeps=200,
                  max_steps=1, patience=5, min_gain=1e-3, target=None, project=None, project_every=4,
-                 band_below=BAND_BELOW):
+                 band_below=BAND_BELOW, banded=None):
     """Raise the minimum scaled Jacobian of hexes H at V by moves of single vertices (module docstring).
 
     ``movable`` (N,) bool; ``boundary``: a :class:`hexsos_plugins.boundary.BoundaryModel` (surface vertices move
@@ -281,7 +281,8 @@ def local_sweeps(V, H, movable, *, boundary=None, deadline=None, band=0.1, tau=0
     ``movable``); ``target``: stop once the minimum reaches it; ``project(V, moved) -> V'``: called every
     ``project_every`` sweeps and at the end with the boundary vertices moved since the last call (it puts them
     back on the input surface; it must not lower the minimum); ``band_below``: only the vertices of hexes whose
-    scaled Jacobian is below it at the start use the boundary's band (the others stay on the surface). Returns (V', info) with ``sweeps``, ``steps``, ``min_before``, ``min_after``."""
+    scaled Jacobian is below it at the start use the boundary's band (the others stay on the surface); ``banded``
+    (N,) bool: of those, only these. Returns (V', info) with ``sweeps``, ``steps``, ``min_before``, ``min_after``."""
     from . import kernels as lo
 
     V = np.array(V, dtype=np.float64, copy=True)
@@ -293,6 +294,8 @@ def local_sweeps(V, H, movable, *, boundary=None, deadline=None, band=0.1, tau=0
     cell_sj = lo.cell_minima(V, H, G, float(factor))
     allowed = np.zeros(N, dtype=bool)
     allowed[H[cell_sj < band_below].ravel()] = True
+    if banded is not None:
+        allowed &= banded
     ref, A, width = band_limits(V, movable, boundary, proj, allowed)
     info = {"sweeps": 0, "steps": 0, "min_before": float(cell_sj.min()) if cell_sj.size else np.inf}
     can = np.abs(proj).sum(axis=(1, 2)) > 0
