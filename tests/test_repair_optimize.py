@@ -748,7 +748,6 @@ def test_rounds_below_their_start_are_kept_where_the_vertex_steps_from_them_rise
     assert r.stats["boundary_max_distance"] < 0.02
 
 
-
 def test_the_vertex_steps_between_chunks_of_rounds_move_feature_corners_within_the_band(monkeypatch):
     """A hex held by a pinned feature corner caps stage 2's rounds (kitten_with_bifur_3's hex 16739 at 0.4602, three
     of its vertices feature corners): the vertex steps after a chunk of rounds end with the band's pass, which moves
@@ -796,6 +795,7 @@ def test_the_vertex_steps_between_chunks_of_rounds_move_feature_corners_within_t
             assert moved.max() == 0.0
         reached[on] = least
     assert reached[True] > 0.9 and reached[False] < 0.85
+
 
 def _ball_after_vertex_steps():
     """A 3^3 cubed ball held on its surface, after the vertex steps: (Q, hexes, boundary model, movable, W), where
