@@ -166,9 +166,12 @@ WIDEN_LOCAL_SECONDS = 2.0
 #: steps (kitten_with_bifur_3's hex 16739 at 0.4602, three of its vertices feature corners; the band's pass lifts it
 #: to 0.798). Over three starts perturbed by 1e-12 (`python -m comparison.bench_repair --published --starts 3`,
 #: 2026-12-07) the medians: kitten_with_bifur_3 0.685 -> 0.702, Dolphin_2 0.844 -> 0.851, the bunny 0.928 -> 0.933,
-#: rockarm 0.865 -> 0.853, the other four the same. Every boundary vertex of hexes below BAND_BELOW within the band
-#: there (as in the last steps): kitten_with_bifur_3 0.704, rockarm 0.865, but rockarm's boundary 2.06% of the
-#: diagonal from the input's (1.97% with the corners only; README, Published meshes)
+#: rockarm 0.865 -> 0.853, the other four the same. rockarm's loss (its third start, traced): the steps after its
+#: first chunk now reach 0.758 (0.731 before), past ``_TAU_MAX``, so no cell is left for a wider region's rounds and
+#: the stage ends; the last vertex and joint steps then end at 0.853 where the wider region's rounds (0.737) led them
+#: to 0.866. Every boundary vertex of hexes below BAND_BELOW within the band there (as in the last steps):
+#: kitten_with_bifur_3 0.704, rockarm 0.865, but rockarm's boundary 2.06% of the diagonal from the input's (1.97%
+#: with the corners only; README, Published meshes)
 CHUNK_CORNERS = True
 #: A chunk of stage 2's rounds ending below its start by the minimum is kept where the vertex steps from its end
 #: (CHUNK_LOCAL_SECONDS) rise this much above the start; undone otherwise. Over three starts perturbed by 1e-12
