@@ -751,10 +751,12 @@ def test_rounds_below_their_start_are_kept_where_the_vertex_steps_from_them_rise
 def test_the_vertex_steps_between_chunks_of_rounds_move_feature_corners_within_the_band(monkeypatch):
     """A hex held by a pinned feature corner caps stage 2's rounds (kitten_with_bifur_3's hex 16739 at 0.4602, three
     of its vertices feature corners): the vertex steps after a chunk of rounds end with the band's pass, which moves
-    them within the band (``CHUNK_CORNERS``), and the rounds go on from there. A 4^3 grid with noise inside and its
-    corner at the origin moved in by 0.08 along the diagonal: after its first chunk the steps move that corner,
-    within the band of its input position, the other boundary vertices staying on the grid's faces, and reach 0.93
-    where without that pass (the corner pinned) they reach 0.82."""
+    them within the band (``CHUNK_CORNERS``), and the rounds go on from there; but not the steps before a region
+    widens (``WIDEN_NO_CORNERS``: rockarm's steps there passed the region's highest threshold and left the wider
+    region's rounds nothing). A 4^3 grid with noise inside and its corner at the origin moved in by 0.08 along the
+    diagonal, whose first chunk ends with its region widening: with the pass there, the steps move that corner
+    within the band of its input position, the other boundary vertices staying on the grid's faces, and reach 0.93,
+    where without it (the default there, or ``CHUNK_CORNERS`` off) the corner stays and they reach 0.82."""
     from hexsos_plugins.meshrepair import driver as dr
     from hexsos_plugins.meshrepair.fidelity import boundary_quads
 
@@ -763,7 +765,7 @@ def test_the_vertex_steps_between_chunks_of_rounds_move_feature_corners_within_t
 
     def stepped(self, V, *a, **k):
         out = real_stepped(self, V, *a, **k)
-        seen.append((V.copy(), out[0], self.band_corners.copy(), out[2], a[1]))
+        seen.append((V.copy(), out[0], self.band_corners.copy(), out[2], a[1], k.get("corners", True)))
         return out
 
     monkeypatch.setattr(dr._Optimize, "_stepped", stepped)
@@ -774,15 +776,17 @@ def test_the_vertex_steps_between_chunks_of_rounds_move_feature_corners_within_t
     Q[0] += 0.08
     band = 0.012 * np.sqrt(3.0)  # boundary.BAND_DIAGONAL of the diagonal (a fifth of an edge is more)
     reached = {}
-    for on in (True, False):
-        monkeypatch.setattr(dr, "CHUNK_CORNERS", on)
+    for chunk, widen in ((True, False), (False, False), (True, True)):
+        monkeypatch.setattr(dr, "CHUNK_CORNERS", chunk)
+        monkeypatch.setattr(dr, "WIDEN_NO_CORNERS", widen)
         seen.clear()
         r = hs.repair(Q, H, jobs=0)
         assert r.success and len(seen) == 1
-        V, W, corners, least, bm = seen[0]
+        V, W, corners, least, bm, asked = seen[0]
+        assert asked is not widen  # the steps before the region widens
         assert 0 in corners  # the moved corner is a feature corner, pinned in the rounds
         moved = np.linalg.norm(W[corners] - V[corners], axis=1)
-        if on:
+        if chunk and not widen:
             assert moved.max() > 0.005 and np.linalg.norm(W[0] - Q[0]) <= band * (1 + 1e-9)
             assert np.linalg.norm(r.points[corners] - Q[corners], axis=1).max() <= band * (1 + 1e-9)
             # the other boundary vertices keep to the surface: on the grid's flat faces (away from the corner's
@@ -793,8 +797,8 @@ def test_the_vertex_steps_between_chunks_of_rounds_move_feature_corners_within_t
             assert np.all(bm.distance(W, rest) <= bm.distance(V, rest) + 1e-12)
         else:
             assert moved.max() == 0.0
-        reached[on] = least
-    assert reached[True] > 0.9 and reached[False] < 0.85
+        reached[chunk, widen] = least
+    assert reached[True, False] > 0.9 and reached[False, False] < 0.85 and reached[True, True] < 0.85
 
 
 def _ball_after_vertex_steps():

@@ -160,19 +160,21 @@ CHUNK_ROUNDS = 10
 CHUNK_LOCAL_SECONDS = 2.0
 #: Before stage 2's region widens, the vertex steps run for at most this long from where its rounds ended
 WIDEN_LOCAL_SECONDS = 2.0
-#: Those steps between chunks and before widening end with a pass where the feature corners of the hexes below
-#: ``localopt.BAND_BELOW`` move within the band (the other boundary vertices in their tangent planes), so that the
-#: rounds after them start from there: a hex held by pinned feature corners caps the rounds' minimum until the last
-#: steps (kitten_with_bifur_3's hex 16739 at 0.4602, three of its vertices feature corners; the band's pass lifts it
-#: to 0.798). Over three starts perturbed by 1e-12 (`python -m comparison.bench_repair --published --starts 3`,
-#: 2026-12-07) the medians: kitten_with_bifur_3 0.685 -> 0.702, Dolphin_2 0.844 -> 0.851, the bunny 0.928 -> 0.933,
-#: rockarm 0.865 -> 0.853, the other four the same. rockarm's loss (its third start, traced): the steps after its
-#: first chunk now reach 0.758 (0.731 before), past ``_TAU_MAX``, so no cell is left for a wider region's rounds and
-#: the stage ends; the last vertex and joint steps then end at 0.853 where the wider region's rounds (0.737) led them
-#: to 0.866. Every boundary vertex of hexes below BAND_BELOW within the band there (as in the last steps):
-#: kitten_with_bifur_3 0.704, rockarm 0.865, but rockarm's boundary 2.06% of the diagonal from the input's (1.97%
-#: with the corners only; README, Published meshes)
+#: Those steps between chunks end with a pass where the feature corners of the hexes below ``localopt.BAND_BELOW``
+#: move within the band (the other boundary vertices in their tangent planes), so that the rounds after them start
+#: from there: a hex held by pinned feature corners capped the rounds' minimum until the last steps
+#: (kitten_with_bifur_3's hex 16739 at 0.4602, three of its vertices feature corners; the band's pass lifts it to
+#: 0.798). Over three starts perturbed by 1e-12 (`python -m comparison.bench_repair --published --starts 3`,
+#: 2026-12-07) the medians: kitten_with_bifur_3 0.685 -> 0.707, Dolphin_2 0.844 -> 0.856, the bunny 0.928 -> 0.934,
+#: the other five the same. Every boundary vertex of those hexes within the band there (as in the last steps):
+#: kitten_with_bifur_3 0.704, rockarm 0.865, but rockarm's boundary 2.06% of the diagonal from the input's (README,
+#: Stages (2))
 CHUNK_CORNERS = True
+#: ... but not the steps before a region widens: with the pass there, rockarm's third start reached 0.758 in them
+#: (0.731 without), past ``_TAU_MAX``, so no cell was left for the wider region's rounds and the stage ended; the last
+#: vertex and joint steps then ended at 0.853 where the wider region's rounds (0.737) led them to 0.866 (its starts'
+#: median 0.853 against 0.865, kitten_with_bifur_3's 0.702 against 0.707)
+WIDEN_NO_CORNERS = True
 #: A chunk of stage 2's rounds ending below its start by the minimum is kept where the vertex steps from its end
 #: (CHUNK_LOCAL_SECONDS) rise this much above the start; undone otherwise. Over three starts perturbed by 1e-12
 #: (`python -m comparison.bench_repair --published --starts 3`, 2026-12-07): kitten_with_bifur_3's median 0.669 ->
@@ -956,11 +958,11 @@ class _Optimize:
         self._step("local", W)
         return W
 
-    def _stepped(self, V, movable, bm, others, deadline, seconds):
+    def _stepped(self, V, movable, bm, others, deadline, seconds, corners=True):
         """Stage 2's vertex steps between its chunks of rounds (:meth:`_local`, at most ``seconds``, the feature
-        corners within the band where ``CHUNK_CORNERS``): the mesh, its cells' scaled Jacobians per block and their
-        least."""
-        W = self._local(V, movable, bm, others, deadline, seconds=seconds, band=CHUNK_CORNERS,
+        corners within the band where ``CHUNK_CORNERS`` and ``corners``, which the steps before a region widens
+        turn off, ``WIDEN_NO_CORNERS``): the mesh, its cells' scaled Jacobians per block and their least."""
+        W = self._local(V, movable, bm, others, deadline, seconds=seconds, band=CHUNK_CORNERS and corners,
                         corners_only=True)
         sj = cell_scaled_jacobians(W, self.blocks)
         return W, sj, _least(sj)
@@ -1394,7 +1396,8 @@ class _Optimize:
                         # there crept up 0.002-0.01 a round (warrior_graded: 0.473 -> 0.572 in 17 s, the vertex
                         # steps after them to 0.737 in 7 s; README, Stages (2))
                         V, sj, m_new = self._stepped(V, movable, bm, others, deadline,
-                                                     WIDEN_LOCAL_SECONDS if widen else CHUNK_LOCAL_SECONDS)
+                                                     WIDEN_LOCAL_SECONDS if widen else CHUNK_LOCAL_SECONDS,
+                                                     corners=not (widen and WIDEN_NO_CORNERS))
                     m = m_new
                     if widen:
                         tau = min(m_new + 0.2, _TAU_MAX)
