@@ -34,11 +34,12 @@
 Boundary: ``"slide"`` (default) keeps boundary vertices on the input's boundary surface, feature-edge vertices
 on their feature curves and pins feature corners (:mod:`hexsos_plugins.meshrepair.boundary`), each within a band
 of ``surface_tolerance`` of its boundary edge length (default a fifth; 0: exactly on them, corners fixed); feature
-corners move only within the band, in the vertex steps after chunks of stage 2's rounds and in the last ones, but
-those that keep a cell from being untangled slide on the surface from the start (:func:`stuck_corners`); where the
-repaired boundary surface ends farther than 1.9% of the diagonal from the input's and the input's cells there were
-valid, the repair runs again with the boundary vertices there held near their input positions, and keeps the nearer
-mesh if it costs little (:func:`_leashed_again`); ``"fixed"`` pins every boundary vertex; ``"free"`` lets them move.
+corners move only within the band, in the vertex steps after chunks of stage 2's rounds (not those before a
+region widens) and in the last ones, but those that keep a cell from being untangled slide on the surface from the
+start (:func:`stuck_corners`); where the repaired boundary surface ends farther than 1.9% of the diagonal from the
+input's and the input's cells there were valid, the repair runs again with the boundary vertices there held near
+their input positions, and keeps the nearer mesh if it costs little (:func:`_leashed_again`); ``"fixed"`` pins
+every boundary vertex; ``"free"`` lets them move.
 
 Curved meshes (cells of order 2 or more) and meshes without trilinear hexahedra (tetrahedra, wedges) go to
 :func:`hexsos_plugins.meshrepair.curved.repair_curved` (a barrier on det J's Bernstein coefficients, the boundary
