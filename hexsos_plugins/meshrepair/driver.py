@@ -919,7 +919,7 @@ class _Optimize:
         mv = self._hex_movable(movable, others, band)
         slide = self.boundary == "slide"
         banded = None
-        if corners_only:
+        if band and corners_only:  # the mask serves the band's pass only
             banded = np.zeros(V.shape[0], dtype=bool)
             banded[self.band_corners] = True
         N = V.shape[0]
