@@ -624,7 +624,7 @@ def test_a_point_no_cell_uses_is_no_part_of_the_mesh_size():
 def test_a_cell_collapsed_by_its_connectivity_is_refused_by_name_before_anything_moves(tmp_path):
     """A hex naming one point as its nodes 0 and 1 has an edge of no length wherever its points are: det J is 0 at
     those corners and no repair makes it valid (repaired, it stayed invalid and the boundary moved 13.6% of the
-    diagonal): refused by name; a hex collapsed in space only (its nodes distinct, two at one point) is repaired as
+    diagonal): refused by name, and so is one naming a point at two corners across a face; a hex collapsed in space only (its nodes distinct, two at one point) is repaired as
     before. A copy of a hex in the mirrored node order is written in the other handedness than its original and is
     refused as such, numbered as given (a copy in the same handedness is repaired once: the next test)."""
     from hexsos_plugins.errors import LeftHandedMeshError
@@ -649,6 +649,29 @@ def test_a_cell_collapsed_by_its_connectivity_is_refused_by_name_before_anything
     diagonal[0, 6] = diagonal[0, 0]
     assert not collapsed_cells("hexahedron", diagonal).any() and collapsed_cells("hexahedron", merged).tolist() == [
         k == 13 for k in range(27)]
+    # across a face's diagonal: the face's other two corners have two edges alike, det J 0 there on any points
+    # (the kernel says so on the grid's and on scattered ones); refused by name (before: 10-14 s of repair, then
+    # "1 hex not proven valid"), where the diagonal through the hex is not
+    from hexsos_plugins.cells.topology import face_diagonals
+
+    across = H.copy()
+    across[13, 2] = across[13, 0]
+    for Z in (P, P + 0.05 * np.random.default_rng(1).standard_normal(P.shape)):
+        c = hs.check(Z, across)
+        assert c.status[13] != 1 and c.min_det[13] <= 0 and (c.status[np.arange(27) != 13] == 1).all()
+    with pytest.raises(InvalidInputError, match=r"1 hexahedron cell names one point at two corners across a face "
+                                                r"\(cells 13; cell 13: point \d+ as its nodes 0 and 2\): the face's "
+                                                r"other two corners"):
+        hs.repair(P, across)
+    assert face_diagonals("hexahedron").shape == (12, 2) and face_diagonals("tetra").shape == (0, 2)
+    assert not collapsed_cells("hexahedron", across, face_diagonals("hexahedron"))[:13].any()
+    assert collapsed_cells("hexahedron", across, face_diagonals("hexahedron"))[13]
+    assert not collapsed_cells("hexahedron", diagonal, face_diagonals("hexahedron")).any()
+    assert not collapsed_cells("hexahedron", across).any()  # no edge of no length
+    wedge = np.array([[0, 1, 2, 3, 0, 5]])  # nodes 0 and 4 across its quad face (0, 1, 4, 3)
+    with pytest.raises(InvalidInputError, match=r"1 wedge cell names one point at two corners across a face \(cells "
+                                                r"27; cell 27: point 0 as its nodes 0 and 4\)"):
+        hs.repair(P, H, cells=[("wedge", wedge)])
     assert not collapsed_cells("hexahedron27", np.zeros((1, 27), dtype=np.int64)).any()  # not a linear type
     assert repeated_cells([("hexahedron", twice)]).tolist() == [-1] * 27 + [4]
     assert (repeated_cells([("hexahedron", H)]) == -1).all()

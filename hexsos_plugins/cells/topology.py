@@ -21,7 +21,7 @@ import numpy as np
 from .elements import ELEMENTS
 from ..errors import InvalidInputError
 
-__all__ = ["refuse_collapsed", "collapsed_cells", "repeated_cells", "repeated_words", "edges", "LINEAR"]
+__all__ = ["refuse_collapsed", "collapsed_cells", "face_diagonals", "repeated_cells", "repeated_words", "edges", "LINEAR"]
 
 #: The cell types whose every node is a corner: a repeated node on an edge makes det J 0 there
 LINEAR = ("hexahedron", "tetra", "wedge", "pyramid")
@@ -37,13 +37,24 @@ def edges(name):
     return np.array(sorted(pairs), dtype=np.int64)
 
 
-def collapsed_cells(name, conn) -> np.ndarray:
+def face_diagonals(name):
+    """(D, 2) the corner pairs across the diagonals of the quadrilateral faces of cell type ``name``, sorted."""
+    pairs = set()
+    for f in ELEMENTS[name].faces:
+        if len(f) == 4:
+            pairs.update((min(a, b), max(a, b)) for a, b in ((f[0], f[2]), (f[1], f[3])))
+    return np.array(sorted(pairs), dtype=np.int64).reshape(-1, 2)
+
+
+def collapsed_cells(name, conn, pairs=None) -> np.ndarray:
     """(M,) bool: the cells of a block of ``name`` (a linear type of :data:`LINEAR`; others: none) with the same
-    point at both ends of an edge."""
+    point at both ends of one of ``pairs`` of corners ((P, 2); None: its edges, :func:`edges`)."""
     conn = np.asarray(conn, dtype=np.int64)
     if name not in LINEAR or conn.shape[0] == 0:
         return np.zeros(conn.shape[0], dtype=bool)
-    e = edges(name)
+    e = edges(name) if pairs is None else pairs
+    if e.shape[0] == 0:
+        return np.zeros(conn.shape[0], dtype=bool)
     return (conn[:, e[:, 0]] == conn[:, e[:, 1]]).any(axis=1)
 
 
@@ -106,19 +117,25 @@ def _shown(rows, offset, limit=5):
 
 def refuse_collapsed(blocks) -> None:
     """Raise :class:`~hexsos_plugins.errors.InvalidInputError` naming the cells of ``blocks`` (a list of (type,
-    conn); cells numbered across the blocks, in their order) that are collapsed (:func:`collapsed_cells`)."""
-    offset = 0
-    for name, conn in blocks:
-        conn = np.asarray(conn)
-        bad = np.flatnonzero(collapsed_cells(name, conn))
-        if bad.size:
-            row = conn[bad[0]]
-            e = edges(name)
-            a, b = e[np.flatnonzero(row[e[:, 0]] == row[e[:, 1]])[0]]
-            raise InvalidInputError(
-                f"{bad.size} {name} cell{'s name' if bad.size != 1 else ' names'} one point at both ends of an edge "
-                f"(cells {_shown(bad, offset)}; cell {int(bad[0]) + offset}: point {int(row[a])} as its nodes {a} "
-                f"and {b}): the edge has no length wherever the point is, so det J is 0 there and no repair makes "
-                f"the cell valid. Expected distinct points at the ends of every edge: write a collapsed cell as "
-                "the type it is (a wedge, a pyramid) or leave it out")
-        offset += len(conn)
+    conn); cells numbered across the blocks, in their order) that are collapsed (:func:`collapsed_cells`): one point
+    at both ends of an edge, or else at two corners across a quadrilateral face (:func:`face_diagonals`: the face's
+    other two corners then have two edges alike, so det J is 0 at them wherever the point is)."""
+    for pairs, where, why in (
+            (None, "at both ends of an edge", "the edge has no length wherever the point is, so det J is 0 there"),
+            ("diagonals", "at two corners across a face",
+             "the face's other two corners then have two edges alike wherever the point is, so det J is 0 at them")):
+        offset = 0
+        for name, conn in blocks:
+            conn = np.asarray(conn)
+            e = edges(name) if pairs is None else face_diagonals(name)
+            bad = np.flatnonzero(collapsed_cells(name, conn, e))
+            if bad.size:
+                row = conn[bad[0]]
+                a, b = e[np.flatnonzero(row[e[:, 0]] == row[e[:, 1]])[0]]
+                raise InvalidInputError(
+                    f"{bad.size} {name} cell{'s name' if bad.size != 1 else ' names'} one point {where} "
+                    f"(cells {_shown(bad, offset)}; cell {int(bad[0]) + offset}: point {int(row[a])} as its nodes "
+                    f"{a} and {b}): {why}, and no repair makes the cell valid. Expected distinct points at the "
+                    "corners of every edge and face: write a collapsed cell as the type it is (a wedge, a pyramid) "
+                    "or leave it out")
+            offset += len(conn)
