@@ -740,7 +740,8 @@ def _score(status, min_det, touched, h3, c):
     bad = int((status != 1).sum())
     if bad:
         return (-bad, float(np.min(min_det)), 0.0)
-    rel = min_det[touched] / h3[touched]
+    # a hex of no size in the input (its corners at one point) has no margin to keep: any valid one is above it
+    rel = np.divide(min_det[touched], h3[touched], out=np.full(int(touched.sum()), np.inf), where=h3[touched] > 0)
     return (0, -int((rel < c).sum()), float(rel.min()) if rel.size else np.inf)
 
 
