@@ -21,7 +21,8 @@ import numpy as np
 from .elements import ELEMENTS
 from ..errors import InvalidInputError
 
-__all__ = ["refuse_collapsed", "collapsed_cells", "face_diagonals", "repeated_cells", "repeated_words", "edges", "LINEAR"]
+__all__ = ["refuse_collapsed", "collapsed_cells", "face_diagonals", "repeated_cells", "repeated_words", "edges",
+           "LINEAR"]
 
 #: The cell types whose every node is a corner: a repeated node on an edge makes det J 0 there
 LINEAR = ("hexahedron", "tetra", "wedge", "pyramid")
@@ -120,14 +121,14 @@ def refuse_collapsed(blocks) -> None:
     conn); cells numbered across the blocks, in their order) that are collapsed (:func:`collapsed_cells`): one point
     at both ends of an edge, or else at two corners across a quadrilateral face (:func:`face_diagonals`: the face's
     other two corners then have two edges alike, so det J is 0 at them wherever the point is)."""
-    for pairs, where, why in (
-            (None, "at both ends of an edge", "the edge has no length wherever the point is, so det J is 0 there"),
-            ("diagonals", "at two corners across a face",
+    for pairs_of, where, why in (
+            (edges, "at both ends of an edge", "the edge has no length wherever the point is, so det J is 0 there"),
+            (face_diagonals, "at two corners across a face",
              "the face's other two corners then have two edges alike wherever the point is, so det J is 0 at them")):
         offset = 0
         for name, conn in blocks:
             conn = np.asarray(conn)
-            e = edges(name) if pairs is None else face_diagonals(name)
+            e = pairs_of(name) if name in LINEAR else np.zeros((0, 2), dtype=np.int64)  # others: never collapsed
             bad = np.flatnonzero(collapsed_cells(name, conn, e))
             if bad.size:
                 row = conn[bad[0]]
