@@ -1,6 +1,7 @@
 """``comparison.repair_fuzz``: its damages are what they say, and it tells a traceback, a warning and a false
 certificate from a certified repair, a refusal and an honest failure (each judged on a case made to be one)."""
 
+import io
 import os
 import warnings
 from types import SimpleNamespace
@@ -85,6 +86,7 @@ def test_pieces_of_a_published_mesh_are_cut_as_said_and_two_runs_end_without_fai
     P, H = repair_fuzz.piece(m.points, m.hexes, np.random.default_rng(3), 50)
     assert H.shape == (50, 8) and P.shape[0] == len(np.unique(H)) and H.max() == len(P) - 1
     assert set(map(tuple, np.round(P, 12))) <= set(map(tuple, np.round(m.points, 12)))
-    rows = repair_fuzz.fuzz(2, seed=8, time_limit=20, max_hexes=80, log=open(os.devnull, "w"))
-    assert len(rows) == 2 and all(r["outcome"] != "failure" for r in rows), rows
+    log = io.StringIO()
+    rows = repair_fuzz.fuzz(2, seed=8, time_limit=20, max_hexes=80, log=log)
+    assert len(rows) == 2 and log.getvalue().count("\n") == 2 and all(r["outcome"] != "failure" for r in rows), rows
     assert "| damage | runs |" in repair_fuzz.table(rows)
