@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from hexsos_plugins.errors import InvalidInputError
-from hexsos_plugins.cells.quality import IDEAL, sample_scaled_jacobians, scaled_jacobian, summary
+from hexsos_plugins.cells.quality import IDEAL, sample_scaled_jacobians, scaled_jacobian, sj_text, summary
 
 vtk = pytest.importorskip("vtk")
 from vtk.util.numpy_support import numpy_to_vtk, vtk_to_numpy  # noqa: E402
@@ -76,3 +76,12 @@ def test_hex_array_input_other_types_nan_and_summary():
         scaled_jacobian(P, np.array([[0, 1, 2, 3, 4, 5, 6, 8]]))
     with pytest.raises(InvalidInputError, match="expected"):
         scaled_jacobian(P, np.zeros((1, 7), int))
+
+
+def test_sj_text_prints_a_small_scaled_jacobian_with_its_digits_not_as_zero():
+    assert sj_text(0.86603) == "0.8660"
+    assert sj_text(-0.5) == "-0.5000"
+    assert sj_text(0.0) == "0.0000"
+    assert sj_text(5e-5) == "0.0001"  # four decimals still say it is not 0
+    assert sj_text(2e-6) == "2.00e-06"
+    assert sj_text(-3.456e-9) == "-3.46e-09"

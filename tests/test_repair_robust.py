@@ -876,3 +876,17 @@ def test_the_first_sweeps_go_on_while_they_leave_the_cells_less_inverted(monkeyp
     assert smooth_untangle(P, blocks, inner, full.bad_cells)[2] == 0
     stalled = hs.repair(P, H, boundary="free", time_limit=8, jobs=0)
     assert not stalled.success and stalled.stats["smoothing_sweeps"] == 0, stalled.message
+
+
+def test_a_flat_mesh_certified_says_its_least_scaled_jacobian_not_zero():
+    """A sheared grid flattened to 1e-6 of its height: every hex is valid at scaled Jacobian 2e-6. The message and
+    the report print that value, not "min scaled Jacobian 0.0000", which reads as a degenerate cell certified."""
+    P, H = structured_grid(3)
+    P = P.copy()
+    P[:, 0] += 0.5 * P[:, 2]
+    P[:, 2] *= 1e-6
+    r = hs.repair(P, H, local=True)
+    assert r.success and np.array_equal(r.points, P)
+    assert "min scaled Jacobian 2.00e-06 (was 2.00e-06)" in r.message
+    assert "0.0000" not in r.message
+    assert "scaled Jacobian   min 2.00e-06 -> 2.00e-06" in r.summary()

@@ -31,8 +31,9 @@ import numpy as np
 from ..errors import InvalidInputError
 from .hexahedron import EDGES
 
-__all__ = ["scaled_jacobian", "summary", "sample_scaled_jacobians", "unit_edges", "det3", "SAMPLES", "LINEAR_TYPES",
-           "IDEAL", "as_cell_list", "sample_edges", "hex_edge_ratio", "edge_ratio_summary", "SHORT_EDGE_RATIO"]
+__all__ = ["scaled_jacobian", "summary", "sj_text", "sample_scaled_jacobians", "unit_edges", "det3", "SAMPLES",
+           "LINEAR_TYPES", "IDEAL", "as_cell_list", "sample_edges", "hex_edge_ratio", "edge_ratio_summary",
+           "SHORT_EDGE_RATIO"]
 
 #: A hex whose shortest edge is below this fraction of its longest is counted in the reports (an aspect ratio
 #: above 20): the scaled Jacobian does not see an edge's length, and a hex with an edge collapsed toward 0 can
@@ -244,6 +245,14 @@ def edge_ratio_summary(points, hexes) -> tuple:
     """(least shortest / longest edge of a hex, hexes below :data:`SHORT_EDGE_RATIO`); (1.0, 0) without hexes."""
     r = hex_edge_ratio(points, hexes)
     return (float(r.min()) if r.size else 1.0, int((r < SHORT_EDGE_RATIO).sum()))
+
+
+def sj_text(x) -> str:
+    """A scaled Jacobian as the reports print it: four decimals, but three significant digits where four decimals
+    would print a value that is not 0 as 0.0000 (a flat mesh's cells certified at 1e-6 read "certified, min 0.0000",
+    as if one were degenerate)."""
+    x = float(x)
+    return f"{x:.2e}" if x != 0 and abs(x) < 5e-5 else f"{x:.4f}"
 
 
 def summary(sj) -> dict:

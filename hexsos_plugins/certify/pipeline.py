@@ -288,10 +288,13 @@ class CheckResult:
 
     def quality_line(self) -> str:
         """One line with the scaled Jacobian's minimum, 1st percentile and mean ("" when not computed)."""
+        from ..cells.quality import sj_text
+
         q = self.quality()
         if not q or q.get("min") is None:
             return ""
-        return f"scaled J   min {q['min']:.4f}, 1st percentile {q['p1']:.4f}, mean {q['mean']:.4f} (corners, Verdict)"
+        return (f"scaled J   min {sj_text(q['min'])}, 1st percentile {sj_text(q['p1'])}, mean {sj_text(q['mean'])} "
+                "(corners, Verdict)")
 
     def __repr__(self) -> str:
         c = self.counts()

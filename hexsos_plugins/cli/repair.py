@@ -262,7 +262,7 @@ def _finish(args, mesh, orient, result, bar, cells) -> int:
     """Everything after the repair: fidelity, writing OUT, the certificate of the file, the report."""
     from ..io import read, write
     from ..meshrepair import check_cells
-    from ..cells.quality import scaled_jacobian
+    from ..cells.quality import scaled_jacobian, sj_text
 
     bar.close()
 
@@ -330,7 +330,7 @@ def _finish(args, mesh, orient, result, bar, cells) -> int:
         stats["warnings"].append(far)
     if not target_ok:
         stats["warnings"].append(f"the target --min-sj {stats['min_sj_target']:g} was not reached (min scaled "
-                                 f"Jacobian {stats['min_sj_after']:.4f})")
+                                 f"Jacobian {sj_text(stats['min_sj_after'])})")
     for key, png in (("plot", args.plot), ("histogram", args.histogram)):
         if png:
             stats[key] = png

@@ -82,7 +82,7 @@ def repair_curved(points, cells, *, boundary: str = "slide", min_sj=None, max_it
     """
     from ..certify import check
     from ..kernel import scaled_jacobian
-    from ..cells.quality import summary
+    from ..cells.quality import sj_text, summary
     from .blas import single_thread
     from .skeleton import folded_cells, linear_blocks, place_high_order
     from .skeleton import untangle as skeleton_untangle
@@ -386,7 +386,7 @@ def repair_curved(points, cells, *, boundary: str = "slide", min_sj=None, max_it
     for name, conn in blocks:
         types[name] = types.get(name, 0) + int(conn.shape[0])
     if ok:
-        message = (f"every cell proven valid; curved scaled Jacobian min {csj1.min():.4f} (was {csj0.min():.4f})")
+        message = f"every cell proven valid; curved scaled Jacobian min {sj_text(csj1.min())} (was {sj_text(csj0.min())})"
         if reached is False:
             message += f"; the target min_sj {min_sj:g} was not reached"
     else:

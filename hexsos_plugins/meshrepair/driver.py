@@ -64,7 +64,7 @@ from ..certify import check, validate_arrays
 from ..cells.elements import ELEMENTS
 from ..cells.inputs import checked_block
 from ..errors import InvalidInputError
-from ..cells.quality import IDEAL, LINEAR_TYPES, SAMPLES, edge_ratio_summary, summary
+from ..cells.quality import IDEAL, LINEAR_TYPES, SAMPLES, edge_ratio_summary, sj_text, summary
 from .options import BOUNDARY_MODES, DEFAULT_MARGIN, DEFAULT_RHO, METHODS, SURFACE_TOLERANCE, resolve_boundary
 from .fidelity import FAR_FRACTION
 from .paper import MEMORY, boundary_vertex_mask, hex_edge_length, repair_hex, repair_paper
@@ -1491,7 +1491,8 @@ class _Optimize:
         s1 = summary(sj1)
         reached = None if self.min_sj is None else bool(s1["min"] >= self.min_sj)
         if ok:
-            message = (f"every cell proven valid; min scaled Jacobian {s1['min']:.4f} (was {summary(sj0)['min']:.4f})"
+            message = (f"every cell proven valid; min scaled Jacobian {sj_text(s1['min'])} (was "
+                       f"{sj_text(summary(sj0)['min'])})"
                        + (" after the paper's Algorithm 2 finished what the optimizer left" if used_fallback else ""))
             if reached is False:
                 message += f"; the target min_sj {self.min_sj:g} was not reached"

@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..certify import CheckResult
-from ..cells.quality import SHORT_EDGE_RATIO
+from ..cells.quality import SHORT_EDGE_RATIO, sj_text
 from .boundary import TILT_DEGREES
 
 __all__ = ["RepairResult", "readonly", "step_words"]
@@ -95,9 +95,10 @@ class RepairResult:
 
 
 def sj_line(s):
-    line = (f"scaled Jacobian   min {s['min_sj_before']:.4f} -> {s['min_sj_after']:.4f}, 1st percentile "
-            f"{s['p1_sj_before']:.4f} -> {s['p1_sj_after']:.4f}, mean {s['mean_sj_before']:.4f} -> "
-            f"{s['mean_sj_after']:.4f}")
+    t = {k: sj_text(s[k]) for k in ("min_sj_before", "min_sj_after", "p1_sj_before", "p1_sj_after",
+                                     "mean_sj_before", "mean_sj_after")}
+    line = (f"scaled Jacobian   min {t['min_sj_before']} -> {t['min_sj_after']}, 1st percentile "
+            f"{t['p1_sj_before']} -> {t['p1_sj_after']}, mean {t['mean_sj_before']} -> {t['mean_sj_after']}")
     if "edge_ratio_after" in s:
         line += (f"\nedge ratio        shortest / longest edge of a hex, least {s['edge_ratio_before']:.4f} -> "
                  f"{s['edge_ratio_after']:.4f}; hexes below {SHORT_EDGE_RATIO:g}: {s['short_edge_hexes_before']} -> "
@@ -116,7 +117,7 @@ def _leash_lines(info):
         return [head + f" were not held ({info.get('why', 'not run')})"]
     return [head + f" held within {100 * info['radius']:g}% of it of their input positions in a second run: "
             + (f"{100 * info['deviation_leashed']:.2f}%" if info["deviation_leashed"] is not None else "not certified")
-            + f", min SJ {info['min_sj_free']:.4f} -> {info['min_sj_leashed']:.4f}, "
+            + f", min SJ {sj_text(info['min_sj_free'])} -> {sj_text(info['min_sj_leashed'])}, "
             + ("kept" if info["kept"] else "not kept (the first run's mesh is returned)")
             + f" ({info['seconds']:.1f} s)"]
 
@@ -183,7 +184,7 @@ def summary_curved(res):
         f"invalid before    {s['invalid_before']} (undecided {s['undecided_before']})",
         f"invalid after     {s['invalid_after']} (undecided {s['undecided_after']})",
         f"min det J         {s['min_det_before']:.6g} -> {s['min_det_after']:.6g} (the kernel's)",
-        f"curved scaled J.  min {s['curved_sj_before']:.4f} -> {s['curved_sj_after']:.4f} (min / max of det J's "
+        f"curved scaled J.  min {sj_text(s['curved_sj_before'])} -> {sj_text(s['curved_sj_after'])} (min / max of det J's "
         "Bernstein coefficients, proven)",
         sj_line(s) + " (corners)",
         f"displacement      max {s['max_displacement']:.6g}, mean {s['mean_displacement']:.6g} over "
