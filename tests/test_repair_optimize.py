@@ -371,6 +371,38 @@ def test_a_target_takes_the_default_s_path_cut_short():
     assert r.success and r.stats["min_sj_target_reached"] is True and r.stats["min_sj_after"] >= 0.7, r.stats
 
 
+def test_a_target_the_steps_reach_skips_the_rounds(bunny_path, monkeypatch):
+    """``min_sj``: the vertex and joint steps try first (``driver.TARGET_STEPS_FIRST``); the bunny asked for 0.8 is
+    there after them, and stage 2's rounds (about 8 s of them with the rounds first) do not run."""
+    from hexsos_plugins.meshrepair import driver
+
+    mesh = hs.read(bunny_path)
+    r = hs.repair(mesh.points, mesh.hexes, min_sj=0.8, jobs=0)
+    assert r.success and _certified(r.points, mesh.hexes)
+    assert scaled_jacobian(r.points, mesh.hexes).min() >= 0.8 and r.stats["min_sj_target_reached"] is True
+    first = r.stats["target_steps_first"]
+    assert first["reached"] is True and first["min_sj"] >= 0.8 and r.stats["quality_rounds"] == 0, first
+    monkeypatch.setattr(driver, "TARGET_STEPS_FIRST", None)  # the rounds first, as before
+    r2 = hs.repair(mesh.points, mesh.hexes, min_sj=0.8, jobs=0)
+    assert r2.success and r2.stats["min_sj_after"] >= 0.8
+    assert r2.stats["target_steps_first"] is None and r2.stats["quality_rounds"] > 0
+
+
+def test_a_target_the_steps_do_not_reach_goes_on_with_the_rounds():
+    """Dolphin_2 asked for 0.8: its vertex steps end far below (0.05), so the joint steps are not tried
+    (``driver.TARGET_JOINT_WITHIN``), the steps' mesh is dropped, and the rounds take it to the target."""
+    from hexsos_plugins.io import read
+
+    from conftest import published
+
+    m = read(published("hexalab/Dolphin_2.mesh"))
+    r = hs.repair(m.points, m.hexes, min_sj=0.8, jobs=0)
+    assert r.success and _certified(r.points, m.hexes) and r.stats["min_sj_after"] >= 0.8
+    first = r.stats["target_steps_first"]
+    assert first["reached"] is False and first["min_sj"] == first["min_sj_vertex_steps"] < 0.7, first
+    assert r.stats["quality_rounds"] > 0
+
+
 def test_bunny_target_is_reached_from_a_start_rounding_moved(bunny_path):
     # rounding decides where stage 2 goes: from this start (coordinates moved by 1e-13) solves stopped at the target
     # and projected back onto the surface settled at 0.11, and the last projection took a reached 0.203 to 0.196

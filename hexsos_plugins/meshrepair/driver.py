@@ -19,7 +19,8 @@
    budget; a region stops once it passes the cells left out, which cap the minimum, and then widens). Before it,
    after every 10 of its rounds and at its end, vertex steps (:func:`hexsos_plugins.meshrepair.localopt.local_sweeps`)
    raise the minimum vertex by vertex, worst first, never lowering it; then the joint steps
-   (:func:`hexsos_plugins.meshrepair.jointsteps.joint_steps`) move the worst hexes' vertices together. Last, the
+   (:func:`hexsos_plugins.meshrepair.jointsteps.joint_steps`) move the worst hexes' vertices together. With a
+   target ``min_sj`` the vertex and joint steps try first, and where they reach it the rounds are skipped. Last, the
    boundary quads left turned over, or tilted far from their input normal, are turned back where their own
    vertices can do it without lowering the minimum (:func:`hexsos_plugins.meshrepair.localopt.straighten_quads`).
    ``local=True`` lets only the vertices of the cells not proven valid and ``rings`` layers around them move, in
@@ -161,6 +162,18 @@ PAPER_LIFT_SECONDS = 5.0
 #: two tests for every sweep (kept by either), the bunny's stress test at 1.5 edge lengths ended at 0.939 in two runs
 #: instead of 0.945 (`python -m comparison.bench_repair --published --perturbed --mesh bunny.vtk`; 0.945 with this)
 SWEEPS_BY_NEGATIVITY = True
+#: With a target (``min_sj``), the vertex steps and then the joint steps try to reach it before stage 2's rounds,
+#: for at most these many seconds each (:meth:`_Optimize._steps_first`); where they do, the rounds are skipped, else
+#: they go on from where the steps began. The rounds raise the bulk of the low region first, which the steps then
+#: lift past what they reach alone (kitten_with_bifur_3 asked nothing: 0.72 with the rounds, 0.667 without); but
+#: a target the steps reach alone they reach in seconds where the rounds took tens of them (README, Stages (2)).
+#: None: the rounds first, as without a target
+TARGET_STEPS_FIRST = (5.0, 3.0)
+#: ... the joint steps only where the vertex steps end within this of the target. One run each from a script
+#: (``repair(..., jobs=0, min_sj=T)``, 2026-12-08): the targets reached ended 0.016-0.041 short after the vertex
+#: steps; Dolphin_2 asked for 0.8 ended them at 0.047 and kitten_with_bifur_3 asked for 0.7 at 0.48-0.56, and 3 s
+#: of joint steps took them to 0.654 and 0.593
+TARGET_JOINT_WITHIN = 0.1
 #: The rings of cells around the bad ones whose vertices :func:`harmonic_untangle` moves
 HARMONIC_RINGS = 2
 PRE_STEPS = True
@@ -533,8 +546,10 @@ def repair(points, hexes, *, cells=None, method: str = "optimize", boundary: str
         What boundary vertices may do (module docstring). Default ``"slide"`` (``"fixed"`` with
         ``pin_boundary=True``). ``method="paper"`` knows ``"fixed"`` and ``"free"`` only (default ``"free"``).
     min_sj : float, optional, keyword-only
-        Target minimum scaled Jacobian: stage 2 stops once every linear cell reaches it. Default None: as high
-        as it goes (it stops when the minimum rose by less than 1e-3 in 6 rounds, or at the budget).
+        Target minimum scaled Jacobian: stage 2 stops once every linear cell reaches it, the vertex and joint
+        steps tried first (:data:`TARGET_STEPS_FIRST`: where they reach it, in seconds, stage 2's rounds are
+        skipped, which raise the mean too). Default None: as high as it goes (it stops when the minimum rose by
+        less than 1e-3 in 6 rounds, or at the budget).
     max_iter : int, optional, keyword-only
         ``"optimize"``: most outer steps per stage (default 60 untangling steps, 80 quality rounds).
         ``"paper"``: most outer iterations of Algorithm 2 (default 100).
@@ -606,7 +621,9 @@ def repair(points, hexes, *, cells=None, method: str = "optimize", boundary: str
         ended from the input's, of its diagonal, sampled; ``vertices`` held where that is more than 1.9% and the
         input's cells there were valid; ``run``, ``kept``, ``deviation_leashed``, ``min_sj_free``,
         ``min_sj_leashed``, ``radius``, ``seconds`` of the second run that held them, or ``why`` it did not run:
-        :func:`_leashed_again`), ...
+        :func:`_leashed_again`), ``target_steps_first`` (with ``min_sj``: ``reached``, ``min_sj``,
+        ``min_sj_vertex_steps`` and ``seconds`` of the steps tried before stage 2's rounds, :data:`TARGET_STEPS_FIRST`;
+        None where they were not tried), ...
 
     Raises
     ------
@@ -920,6 +937,7 @@ class _Optimize:
         self.bm, self.suspect = None, None  # the boundary model and the input's inverted cells' vertices, once run
         self.band_corners = np.zeros(0, dtype=np.int64)  # feature corners that move within the band (band passes)
         self.local_info = {}
+        self.target_first = None  # what :meth:`_steps_first` did, with a target
         self.undone_seconds = 0.0  # stage 2's rounds undone (they ended below their start): the joint steps' too
         self.history = []
         from .kernels import load
@@ -1039,6 +1057,38 @@ class _Optimize:
             return V
         self._step("joint", W)
         return W
+
+    def _steps_first(self, V, movable, bm, others, deadline):
+        """With a target (``min_sj``): the vertex steps and (where they end within ``TARGET_JOINT_WITHIN`` of it) the
+        joint steps before stage 2's rounds, for at most ``TARGET_STEPS_FIRST`` seconds each, each ending at the
+        target. Returns (mesh, reached): their mesh where it reaches the target (the rounds are skipped), else V as
+        it was (the rounds go on from it, as without this try; the steps' counts are not kept).
+        ``self.target_first`` says what was tried, and in how long."""
+        from .jointsteps import joint_steps
+
+        t = time.perf_counter()
+        m = _least(cell_scaled_jacobians(V, self.blocks))
+        if m >= self.min_sj:
+            return V, True
+        counts = dict(self.local_info)
+        local_s, joint_s = TARGET_STEPS_FIRST
+        W = self._local(V, movable, bm, others, deadline, band=True, seconds=local_s)
+        m_w = m_local = _least(cell_scaled_jacobians(W, self.blocks))
+        if self.min_sj - TARGET_JOINT_WITHIN <= m_w < self.min_sj:
+            end = time.perf_counter() + joint_s
+            W, info = joint_steps(W, self.H, self._hex_movable(movable, others, True), boundary=bm,
+                                  deadline=end if deadline is None else min(deadline, end), target=self.min_sj)
+            if info["steps"]:
+                self.local_info["joint_steps"] = info["steps"]
+                self._step("joint", W)
+            m_w = _least(cell_scaled_jacobians(W, self.blocks))
+        reached = bool(m_w >= self.min_sj)
+        self.target_first = {"reached": reached, "min_sj": float(m_w), "min_sj_vertex_steps": float(m_local),
+                             "seconds": time.perf_counter() - t}
+        if not reached:
+            self.local_info = counts
+            return V, False
+        return W, True
 
     def _straighten(self, V, movable, bm, others):
         """The boundary quads turned over or tilted far from their input normal at the end turned back where their
@@ -1346,7 +1396,10 @@ class _Optimize:
                 # the vertex steps first: from a just-untangled mesh (min SJ near 0) they raise the minimum in
                 # a second where the barrier's rounds gain 0.002 each (bunny: 0.003 -> 0.09 in 30 s of rounds)
                 V = self._local(V, movable, bm, others, deadline1)
-            if untangled:
+            reached_first = False
+            if untangled and self.local_steps and self.min_sj is not None and TARGET_STEPS_FIRST is not None:
+                V, reached_first = self._steps_first(V, movable, bm, others, deadline1)
+            if untangled and not reached_first:
                 rounds_left = self.max_rounds
                 sj = cell_scaled_jacobians(V, blocks)
                 m = _least(sj)
@@ -1574,6 +1627,7 @@ class _Optimize:
             "unturned_quads": int(self.local_info.get("unturned", 0)),
             "untilted_quads": int(self.local_info.get("untilted", 0)),
             "joint_past_budget": float(self.local_info.get("joint_past_budget", 0.0)),
+            "target_steps_first": self.target_first,
             "outer_iterations": len(self.history) - 1, "sos_steps": int(sum(h["sos_steps"] for h in self.history)),
             "projection_steps": 0, "sdp_solves": 0,
             "max_displacement": float(norm.max()) if N else 0.0,
