@@ -386,7 +386,8 @@ def repair_curved(points, cells, *, boundary: str = "slide", min_sj=None, max_it
     for name, conn in blocks:
         types[name] = types.get(name, 0) + int(conn.shape[0])
     if ok:
-        message = f"every cell proven valid; curved scaled Jacobian min {sj_text(csj1.min())} (was {sj_text(csj0.min())})"
+        message = (f"every cell proven valid; curved scaled Jacobian min {sj_text(csj1.min())} (was "
+                   f"{sj_text(csj0.min())})")
         if reached is False:
             message += f"; the target min_sj {min_sj:g} was not reached"
     else:

@@ -184,8 +184,8 @@ def summary_curved(res):
         f"invalid before    {s['invalid_before']} (undecided {s['undecided_before']})",
         f"invalid after     {s['invalid_after']} (undecided {s['undecided_after']})",
         f"min det J         {s['min_det_before']:.6g} -> {s['min_det_after']:.6g} (the kernel's)",
-        f"curved scaled J.  min {sj_text(s['curved_sj_before'])} -> {sj_text(s['curved_sj_after'])} (min / max of det J's "
-        "Bernstein coefficients, proven)",
+        f"curved scaled J.  min {sj_text(s['curved_sj_before'])} -> {sj_text(s['curved_sj_after'])} (min / max of "
+        "det J's Bernstein coefficients, proven)",
         sj_line(s) + " (corners)",
         f"displacement      max {s['max_displacement']:.6g}, mean {s['mean_displacement']:.6g} over "
         f"{s['moved_vertices']} moved nodes" + (f", {s['pinned_vertices']} pinned" if s["pinned_vertices"] else ""),
