@@ -1036,20 +1036,23 @@ class _Optimize:
         left = self.t0 + REPAIR_SECONDS - time.perf_counter()
         return min(cap, max(floor, part * left))
 
-    def _joint(self, V, movable, bm, others, deadline):
+    def _joint(self, V, movable, bm, others, deadline, seconds=None):
         """Stage 2c (:func:`hexsos_plugins.meshrepair.jointsteps.joint_steps`) on the hexes, for ``JOINT_SECONDS``
         and the seconds of stage 2's undone rounds (:meth:`_share`), without a time limit then on while they gain
-        (``JOINT_WINDOW``, ``JOINT_GAIN``) up to ``REPAIR_SECONDS`` from the start: the vertices the last vertex
-        steps could move (feature corners within the band), those of other cells staying; boundary vertices move
-        within the band (without one they stay)."""
+        (``JOINT_WINDOW``, ``JOINT_GAIN``) up to ``REPAIR_SECONDS`` from the start; with ``seconds``, for that long
+        at most (:meth:`_steps_first`). The vertices the last vertex steps could move (feature corners within the
+        band), those of other cells staying; boundary vertices move within the band (without one they stay)."""
         from .jointsteps import joint_steps
 
         mv = self._hex_movable(movable, others, True)
-        end = time.perf_counter() + self._share(JOINT_SECONDS + self.undone_seconds, JOINT_MIN_SECONDS)
-        if deadline is None:  # no time limit: on past ``end`` while they gain, to the shared end
+        if seconds is not None:
+            end = time.perf_counter() + seconds
+        else:
+            end = time.perf_counter() + self._share(JOINT_SECONDS + self.undone_seconds, JOINT_MIN_SECONDS)
+        if deadline is None and seconds is None:  # no time limit: on past ``end`` while they gain, to the shared end
             deadline, go_on = max(end, self.t0 + REPAIR_SECONDS), (end, JOINT_WINDOW, JOINT_GAIN)
         else:
-            deadline, go_on = min(deadline, end), None
+            deadline, go_on = end if deadline is None else min(deadline, end), None
         W, info = joint_steps(V, self.H, mv, boundary=bm, deadline=deadline, target=self.min_sj, go_on=go_on)
         self.local_info["joint_steps"] = info["steps"]
         self.local_info["joint_past_budget"] = info["past_soft"]
@@ -1064,8 +1067,6 @@ class _Optimize:
         target. Returns (mesh, reached): their mesh where it reaches the target (the rounds are skipped), else V as
         it was (the rounds go on from it, as without this try; the steps' counts are not kept).
         ``self.target_first`` says what was tried, and in how long."""
-        from .jointsteps import joint_steps
-
         t = time.perf_counter()
         m = _least(cell_scaled_jacobians(V, self.blocks))
         if m >= self.min_sj:
@@ -1075,12 +1076,7 @@ class _Optimize:
         W = self._local(V, movable, bm, others, deadline, band=True, seconds=local_s)
         m_w = m_local = _least(cell_scaled_jacobians(W, self.blocks))
         if self.min_sj - TARGET_JOINT_WITHIN <= m_w < self.min_sj:
-            end = time.perf_counter() + joint_s
-            W, info = joint_steps(W, self.H, self._hex_movable(movable, others, True), boundary=bm,
-                                  deadline=end if deadline is None else min(deadline, end), target=self.min_sj)
-            if info["steps"]:
-                self.local_info["joint_steps"] = info["steps"]
-                self._step("joint", W)
+            W = self._joint(W, movable, bm, others, deadline, seconds=joint_s)
             m_w = _least(cell_scaled_jacobians(W, self.blocks))
         reached = bool(m_w >= self.min_sj)
         self.target_first = {"reached": reached, "min_sj": float(m_w), "min_sj_vertex_steps": float(m_local),
